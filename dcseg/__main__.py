@@ -1,0 +1,5 @@
+import sys
+
+from dcseg.cli import main
+
+sys.exit(main())

@@ -44,9 +44,11 @@ class Gaussians:
         }
         for name, (tensor, shape) in expected.items():
             if tuple(tensor.shape) != shape:
-                raise ValueError(f"Gaussians.{name} must have shape {shape}, got {tuple(tensor.shape)}")
+                got = tuple(tensor.shape)
+                raise ValueError(f"Gaussians.{name} must have shape {shape}, got {got}")
         if self.sh.ndim != 3 or self.sh.shape[0] != n or self.sh.shape[2] != 3:
-            raise ValueError(f"Gaussians.sh must have shape ({n}, K, 3), got {tuple(self.sh.shape)}")
+            got = tuple(self.sh.shape)
+            raise ValueError(f"Gaussians.sh must have shape ({n}, K, 3), got {got}")
 
     def __len__(self) -> int:
         return int(self.means.shape[0])

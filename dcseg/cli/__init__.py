@@ -10,13 +10,16 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import pkgutil
 import sys
 from collections.abc import Sequence
 
 from dcseg import __version__
 
-VERBS = ("validate", "synth")
-"""Verb modules in the order ``dcseg --help`` lists them."""
+
+def verbs() -> list[str]:
+    """The verb modules of this package, in alphabetical order."""
+    return sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -27,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"dcseg {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     subparsers = parser.add_subparsers(dest="verb", required=True, metavar="COMMAND")
-    for verb in VERBS:
+    for verb in verbs():
         importlib.import_module(f"dcseg.cli.{verb}").register(subparsers)
     return parser
 

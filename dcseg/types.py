@@ -142,8 +142,8 @@ class Frame:
                 )
             )
         elif self.depth.dtype != np.float32:
-            reason = f"depth must be float32, got {self.depth.dtype}"
-            out.append(Problem(self.file("depth"), reason))
+            dtype_reason = f"depth must be float32, got {self.depth.dtype}"
+            out.append(Problem(self.file("depth"), dtype_reason))
         elif not np.all(np.isfinite(self.depth)) or float(self.depth.min(initial=0.0)) < 0:
             out.append(Problem(self.file("depth"), "depth has negative or non-finite values"))
         k = self.intrinsics

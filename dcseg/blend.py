@@ -1,0 +1,103 @@
+"""Per-view blending weights of frozen Gaussians: render anything without re-rasterising.
+
+Once geometry and opacity are frozen (affinity training, cluster masks, label images), every
+pixel's colour is a fixed linear combination of per-Gaussian values:
+``out(p) = sum_i w_pi * v_i`` with ``w_pi = alpha_pi * T_pi``. :class:`BlendWeights` stores those
+weights for one view in CSR form (one row per pixel, row-major pixel order ``p = v * W + u``),
+truncated where the remaining transmittance is negligible, so feature rendering at a few sampled
+pixels, one-hot cluster rendering for all clusters at once and label images are sparse products.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+
+@dataclass(frozen=True)
+class BlendWeights:
+    """The blending weights of one view, CSR over pixels.
+
+    Attributes:
+        height, width: the view's resolution.
+        offsets: ``[H*W + 1]`` int64; the contributions of pixel ``p`` are
+            ``ids[offsets[p]:offsets[p+1]]`` with ``weights[offsets[p]:offsets[p+1]]``.
+        ids: ``[nnz]`` int64 Gaussian indices, front to back within a pixel.
+        weights: ``[nnz]`` float32 blending weights ``alpha * T``.
+    """
+
+    height: int
+    width: int
+    offsets: Tensor
+    ids: Tensor
+    weights: Tensor
+
+    def __post_init__(self) -> None:
+        if self.offsets.shape != (self.height * self.width + 1,):
+            raise ValueError(
+                f"offsets must have shape ({self.height * self.width + 1},), "
+                f"got {tuple(self.offsets.shape)}"
+            )
+        if self.ids.shape != self.weights.shape or self.ids.ndim != 1:
+            raise ValueError("ids and weights must be 1-D tensors of the same length")
+
+    @property
+    def nnz(self) -> int:
+        return int(self.ids.shape[0])
+
+    def nbytes(self) -> int:
+        """Memory held by the three tensors."""
+        tensors = (self.offsets, self.ids, self.weights)
+        return sum(t.element_size() * t.numel() for t in tensors)
+
+    def rows(self) -> Tensor:
+        """``[nnz]`` the pixel index of every stored contribution."""
+        counts = self.offsets[1:] - self.offsets[:-1]
+        pixels = torch.arange(self.height * self.width, device=self.offsets.device)
+        return torch.repeat_interleave(pixels, counts)
+
+    def gather(self, values: Tensor, pixels: Tensor) -> Tensor:
+        """Blend per-Gaussian values at some pixels; differentiable in ``values``.
+
+        Args:
+            values: ``[N, C]`` per-Gaussian values.
+            pixels: ``[S]`` flat pixel indices ``v * W + u``.
+
+        Returns:
+            ``[S, C]`` blended values at those pixels.
+        """
+        starts, ends = self.offsets[pixels], self.offsets[pixels + 1]
+        counts = ends - starts
+        row = torch.repeat_interleave(torch.arange(pixels.shape[0], device=pixels.device), counts)
+        first = torch.repeat_interleave(starts - torch.cumsum(counts, 0) + counts, counts)
+        entry = first + torch.arange(row.shape[0], device=pixels.device)
+        contrib = values[self.ids[entry]] * self.weights[entry, None].to(values.dtype)
+        out = values.new_zeros((pixels.shape[0], values.shape[1]))
+        return out.index_add(0, row, contrib)
+
+    def render(self, values: Tensor) -> Tensor:
+        """Blend per-Gaussian values at every pixel: ``[N, C]`` -> ``[H, W, C]``."""
+        contrib = values[self.ids] * self.weights[:, None].to(values.dtype)
+        out = values.new_zeros((self.height * self.width, values.shape[1]))
+        out = out.index_add(0, self.rows(), contrib)
+        return out.reshape(self.height, self.width, values.shape[1])
+
+    def accumulate_groups(self, group: Tensor, n_groups: int) -> Tensor:
+        """Per pixel and group, the summed weight of the group's Gaussians.
+
+        Args:
+            group: ``[N]`` int64 group (e.g. cluster) of every Gaussian, ``-1`` = none.
+            n_groups: number of groups K.
+
+        Returns:
+            ``[H, W, K]`` accumulated blending weight of each group; this is the one-hot render
+            of all groups at once.
+        """
+        g = group[self.ids]
+        keep = g >= 0
+        flat = self.rows()[keep] * n_groups + g[keep]
+        out = torch.zeros(self.height * self.width * n_groups, dtype=self.weights.dtype)
+        out = out.to(self.weights.device).index_add(0, flat, self.weights[keep])
+        return out.reshape(self.height, self.width, n_groups)

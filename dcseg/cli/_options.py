@@ -1,0 +1,57 @@
+"""Command-line options shared by every verb that reads a capture."""
+
+from __future__ import annotations
+
+import argparse
+
+from dcseg.config import CaptureOptions
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """Parse ``WxH`` (e.g. ``320x240``) into ``(width, height)``."""
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 320x240, got {text!r}") from None
+    if width < 1 or height < 1:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return width, height
+
+
+def parse_intrinsics(text: str) -> tuple[float, float, float, float]:
+    """Parse ``fx,fy,cx,cy`` into four floats."""
+    try:
+        fx, fy, cx, cy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"intrinsics must look like 600,600,599.5,339.5 (fx,fy,cx,cy), got {text!r}"
+        ) from None
+    return fx, fy, cx, cy
+
+
+def add_capture_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--stride --max-frames --size --depth-trunc --intrinsics`` to a verb's parser."""
+    group = parser.add_argument_group("capture options")
+    group.add_argument("--stride", type=int, default=1, help="keep every N-th frame")
+    group.add_argument("--max-frames", type=int, help="keep at most N frames (after --stride)")
+    group.add_argument("--size", type=parse_size, help="downscale frames to WxH")
+    group.add_argument("--depth-trunc", type=float, help="ignore depth beyond this many metres")
+    group.add_argument(
+        "--intrinsics",
+        type=parse_intrinsics,
+        help="fx,fy,cx,cy at native resolution, for layouts without stored intrinsics",
+    )
+
+
+def capture_options(args: argparse.Namespace) -> CaptureOptions:
+    """Build :class:`CaptureOptions` from the options added by :func:`add_capture_options`."""
+    try:
+        return CaptureOptions(
+            stride=args.stride,
+            max_frames=args.max_frames,
+            size=args.size,
+            depth_trunc=args.depth_trunc,
+            intrinsics=args.intrinsics,
+        )
+    except ValueError as error:
+        raise SystemExit(f"dcseg: {error}") from None

@@ -146,6 +146,8 @@ def _check_against_frames(
             out.append(Problem(source or name, f"mask for frame {name!r}, which the capture lacks"))
             continue
         frame_w, frame_h = frame_sizes[name]
+        if width == 0 or height == 0:  # a frame with an empty mask list has no size
+            continue
         if abs(width / height - frame_w / frame_h) > ASPECT_TOLERANCE * frame_w / frame_h:
             out.append(
                 Problem(

@@ -1,0 +1,487 @@
+"""Class-agnostic 2D masks (SAM-style: overlapping, multi-granularity) <-> files.
+
+A mask folder holds one entry per frame, matched to the capture by file stem. Each entry is one of:
+
+* ``<stem>.json``: SAM ``amg.py --convert-to-rle`` output, a JSON list of records whose
+  ``segmentation`` is a COCO RLE (compressed string counts, or uncompressed list counts).
+* ``<stem>/``: SAM ``amg.py`` folder output, binary PNGs ``<id>.png`` (0/255) listed by the
+  ``id`` column of ``metadata.csv``.
+* ``<stem>.png``: an integer label map (uint8/uint16), 0 = no mask, every other value = one mask.
+* ``<stem>.npy``: an integer label map, negative = no mask, every other value = one mask.
+
+Masks are kept compact as COCO RLEs (``{"size": [H, W], "counts": bytes}``) and are only
+decoded on demand, one frame (or one mask) at a time. Empty masks are dropped.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pycocotools.mask as mask_util
+from numpy.typing import NDArray
+
+from dcseg.errors import InputError, Problem
+from dcseg.io.images import display_path, read_image, resize_nearest
+from dcseg.types import AgnosticMasks
+
+__all__ = [
+    "decode_masks",
+    "mask_areas",
+    "masks_from_dense",
+    "masks_from_label_map",
+    "read_agnostic_masks",
+    "resize_masks",
+    "write_agnostic_json",
+]
+
+logger = logging.getLogger(__name__)
+
+RLE = dict[str, Any]
+MASK_SUFFIXES = (".json", ".png", ".npy")
+METADATA_FILE = "metadata.csv"
+
+
+# --------------------------------------------------------------------------- public helpers
+
+
+def masks_from_dense(name: str, dense: NDArray[np.bool_], source: str = "") -> AgnosticMasks:
+    """Encode a dense stack as compact RLE masks, dropping empty ones.
+
+    Args:
+        name: the frame stem.
+        dense: ``[M, H, W]`` boolean masks.
+        source: the file the masks came from.
+
+    Returns:
+        The non-empty masks, in input order.
+    """
+    if dense.ndim != 3:
+        raise ValueError(f"dense masks must be [M, H, W], got shape {dense.shape}")
+    _, height, width = dense.shape
+    rles = [_encode(dense[i]) for i in range(dense.shape[0]) if dense[i].any()]
+    _log_dropped(name, dense.shape[0] - len(rles))
+    return AgnosticMasks(name, int(height), int(width), tuple(rles), source)
+
+
+def masks_from_label_map(
+    name: str, labels: NDArray[np.integer[Any]], *, none_below: int = 0, source: str = ""
+) -> AgnosticMasks:
+    """Turn an integer label map into one mask per distinct value ``>= none_below``.
+
+    Args:
+        name: the frame stem.
+        labels: ``[H, W]`` integer label map.
+        none_below: values below this mean "no mask" (0 for ``.npy`` maps where negative = none,
+            1 for PNG maps where 0 = none).
+        source: the file the map came from.
+
+    Returns:
+        Masks ordered by increasing label value.
+    """
+    if labels.ndim != 2:
+        raise ValueError(f"label map must be [H, W], got shape {labels.shape}")
+    values = np.unique(labels)
+    rles = tuple(_encode(labels == v) for v in values if v >= none_below)
+    return AgnosticMasks(name, int(labels.shape[0]), int(labels.shape[1]), rles, source)
+
+
+def decode_masks(m: AgnosticMasks, index: Sequence[int] | None = None) -> NDArray[np.bool_]:
+    """Decode masks into a dense boolean stack (for one frame at a time).
+
+    Args:
+        m: the masks.
+        index: positions of the masks to decode, in the wanted order; None = all.
+
+    Returns:
+        ``[M, H, W]`` bool, ``M = len(index)`` (or ``len(m)``).
+    """
+    rles = list(m.rles) if index is None else [m.rles[i] for i in index]
+    stack = np.zeros((len(rles), m.height, m.width), dtype=np.bool_)
+    for i, rle in enumerate(rles):
+        stack[i] = _decode_rle(rle)
+    return stack
+
+
+def mask_areas(m: AgnosticMasks) -> NDArray[np.int64]:
+    """The pixel count of every mask.
+
+    Args:
+        m: the masks.
+
+    Returns:
+        ``[M]`` int64 areas.
+    """
+    if not m.rles:
+        return np.zeros(0, dtype=np.int64)
+    return np.asarray(mask_util.area(list(m.rles)), dtype=np.int64)
+
+
+def resize_masks(m: AgnosticMasks, size: tuple[int, int]) -> AgnosticMasks:
+    """Resample masks with nearest neighbour, decoding one mask at a time to bound memory.
+
+    Uses the pixel-centre rule of :func:`dcseg.io.images.resize_nearest`. Masks that vanish at
+    the new resolution are dropped.
+
+    Args:
+        m: the masks.
+        size: target ``(width, height)``.
+
+    Returns:
+        The resampled masks (``m`` itself when already at that size).
+    """
+    width, height = size
+    if width < 1 or height < 1:
+        raise ValueError(f"size must be positive, got {size}")
+    if (m.width, m.height) == (width, height):
+        return m
+    rles = []
+    for rle in m.rles:
+        small = resize_nearest(_decode_rle(rle), size)
+        if small.any():
+            rles.append(_encode(small))
+    _log_dropped(m.name, len(m.rles) - len(rles))
+    return AgnosticMasks(m.name, height, width, tuple(rles), m.source)
+
+
+def write_agnostic_json(path: Path, masks: AgnosticMasks) -> None:
+    """Write masks as a SAM ``amg.py --convert-to-rle`` JSON file.
+
+    Each record has ``segmentation`` (COCO RLE, string counts), ``area``, ``bbox`` (XYWH) and
+    ``crop_box`` (the full image). SAM's ``predicted_iou``, ``stability_score`` and
+    ``point_coords`` are not known here and are left out. Parent folders are created.
+
+    Args:
+        path: the destination ``.json`` file.
+        masks: the masks to write.
+    """
+    areas = mask_areas(masks)
+    boxes = mask_util.toBbox(list(masks.rles)) if masks.rles else np.zeros((0, 4))
+    records = [
+        {
+            "segmentation": {"size": list(rle["size"]), "counts": rle["counts"].decode("ascii")},
+            "area": int(area),
+            "bbox": [int(round(float(v))) for v in box],
+            "crop_box": [0, 0, masks.width, masks.height],
+        }
+        for rle, area, box in zip(masks.rles, areas, boxes, strict=True)
+    ]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(records), encoding="utf-8")
+
+
+# --------------------------------------------------------------------------- folder reader
+
+
+def read_agnostic_masks(
+    folder: Path, *, size: tuple[int, int] | None = None
+) -> dict[str, AgnosticMasks]:
+    """Read every frame's class-agnostic masks from a folder (formats: see the module docstring).
+
+    Args:
+        folder: the mask folder.
+        size: optional target ``(width, height)``; masks are rescaled with nearest neighbour.
+
+    Returns:
+        Masks keyed by frame stem, in sorted stem order. An empty SAM JSON list gives no masks
+        of size ``size`` (or 0x0 when ``size`` is None). Hidden entries and files with other
+        extensions are ignored.
+
+    Raises:
+        InputError: listing every problem found (file and reason).
+    """
+    if not folder.is_dir():
+        raise InputError.single(str(folder), "mask folder not found (or not a folder)")
+    entries, problems = _mask_entries(folder)
+    out: dict[str, AgnosticMasks] = {}
+    for stem, entry in sorted(entries.items()):
+        try:
+            out[stem] = _read_entry(entry, stem, folder.parent, size)
+        except InputError as err:
+            problems.extend(err.problems)
+    if problems:
+        raise InputError(problems)
+    return out
+
+
+def _mask_entries(folder: Path) -> tuple[dict[str, Path], list[Problem]]:
+    """Map stems to mask entries; report stems that appear in more than one format."""
+    by_stem: dict[str, list[Path]] = {}
+    for entry in sorted(folder.iterdir()):
+        if entry.name.startswith("."):
+            continue
+        if not entry.is_dir() and entry.suffix.lower() not in MASK_SUFFIXES:
+            logger.debug("ignoring %s: not a mask file", entry)
+            continue
+        stem = entry.name if entry.is_dir() else entry.stem
+        by_stem.setdefault(stem, []).append(entry)
+    problems = [
+        Problem(
+            display_path(paths[0], folder.parent),
+            f"frame {stem!r} has masks in several formats: "
+            + ", ".join(display_path(p, folder.parent) for p in paths),
+        )
+        for stem, paths in by_stem.items()
+        if len(paths) > 1
+    ]
+    return {s: p[0] for s, p in by_stem.items() if len(p) == 1}, problems
+
+
+def _read_entry(entry: Path, stem: str, root: Path, size: tuple[int, int] | None) -> AgnosticMasks:
+    """Read one frame's masks in whichever format ``entry`` has, rescaled to ``size``.
+
+    Files are named relative to ``root`` in messages and in ``AgnosticMasks.source``.
+    """
+    shown = display_path(entry, root)
+    if entry.is_dir():
+        masks = _read_png_folder(entry, stem, root)
+    elif entry.suffix.lower() == ".json":
+        masks = _read_json(entry, stem, shown, size)
+    else:
+        labels, none_below = _read_label_map(entry, root)
+        if size is not None:
+            labels = resize_nearest(labels, size)
+        masks = masks_from_label_map(stem, labels, none_below=none_below, source=shown)
+    return masks if size is None else resize_masks(masks, size)
+
+
+# --------------------------------------------------------------------------- SAM JSON
+
+
+def _read_json(path: Path, stem: str, shown: str, size: tuple[int, int] | None) -> AgnosticMasks:
+    """Read a SAM amg.py JSON file of RLE records."""
+    try:
+        records = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        reason = f"malformed JSON at line {err.lineno}, column {err.colno}: {err.msg}"
+        raise InputError.single(shown, reason) from err
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError.single(shown, f"cannot read file: {err}") from err
+    if not isinstance(records, list):
+        reason = f"expected a JSON list of SAM mask records, got {type(records).__name__}"
+        raise InputError.single(shown, reason)
+    rles, problems = _records_to_rles(records, shown)
+    if problems:
+        raise InputError(problems)
+    if not rles:
+        width, height = size if size is not None else (0, 0)
+        logger.debug("%s: no mask records", shown)
+        return AgnosticMasks(stem, height, width, (), shown)
+    height, width = (int(v) for v in rles[0]["size"])
+    kept = tuple(r for r in rles if mask_util.area(r) > 0)
+    _log_dropped(stem, len(rles) - len(kept))
+    return AgnosticMasks(stem, height, width, kept, shown)
+
+
+def _records_to_rles(records: list[Any], shown: str) -> tuple[list[RLE], list[Problem]]:
+    """Convert every record's segmentation to a compressed RLE; collect every problem."""
+    rles: list[RLE] = []
+    problems: list[Problem] = []
+    for i, record in enumerate(records):
+        seg = record.get("segmentation") if isinstance(record, dict) else None
+        if seg is None:
+            problems.append(Problem(shown, f"record {i} has no 'segmentation'"))
+            continue
+        rle, reason = _to_rle(seg)
+        if rle is None:
+            problems.append(Problem(shown, f"record {i}: {reason}"))
+        elif rles and rle["size"] != rles[0]["size"]:
+            problems.append(Problem(shown, _size_mismatch(i, rle["size"], rles[0]["size"])))
+        else:
+            rles.append(rle)
+    return rles, problems
+
+
+def _size_mismatch(i: int, got: list[int], first: list[int]) -> str:
+    return (
+        f"record {i}: RLE size {got[1]}x{got[0]} (WxH) disagrees with {first[1]}x{first[0]} "
+        "of the other records"
+    )
+
+
+def _to_rle(seg: Any) -> tuple[RLE | None, str]:
+    """A validated compressed RLE from a COCO segmentation, or None and the reason."""
+    if not isinstance(seg, dict) or "size" not in seg or "counts" not in seg:
+        return None, "segmentation must be a COCO RLE with 'size' and 'counts'"
+    hw = seg["size"]
+    if not (isinstance(hw, list) and len(hw) == 2 and all(_is_count(v) for v in hw)):
+        return None, f"RLE size must be [height, width], got {hw!r}"
+    height, width = hw
+    counts = seg["counts"]
+    if isinstance(counts, list):
+        runs = np.asarray(counts) if all(_is_count(c) for c in counts) else None
+    elif isinstance(counts, str | bytes):
+        raw = counts.encode("utf-8") if isinstance(counts, str) else counts
+        runs = _decode_counts(raw)  # non-ASCII bytes are >= 128 and are rejected
+    else:
+        return None, f"RLE counts must be a string or a list, got {type(counts).__name__}"
+    if runs is None or int(np.sum(runs)) != height * width:
+        return None, f"RLE counts are corrupt (they do not cover the {width}x{height} mask)"
+    if isinstance(counts, list):
+        return mask_util.frPyObjects(seg, height, width), ""
+    return {"size": [height, width], "counts": raw}, ""
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _decode_counts(counts: bytes) -> NDArray[np.int64] | None:
+    """Run lengths of a COCO compressed RLE string (pycocotools ``rleFrString``), or None.
+
+    Vectorised: every character holds 5 bits of a value, with 0x20 = "more characters follow"
+    and 0x10 on the last character = negative; values from the fourth on are deltas to the
+    value two places back. Returns None when the string is malformed or a run is negative.
+    """
+    chars = np.frombuffer(counts, dtype=np.uint8).astype(np.int64) - 48
+    if chars.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    if chars.min() < 0 or chars.max() >= 64 or chars[-1] & 0x20:
+        return None
+    ends = np.flatnonzero((chars & 0x20) == 0)
+    starts = np.concatenate(([0], ends[:-1] + 1))
+    lengths = ends - starts + 1
+    if lengths.max() > 12:
+        return None
+    shift = 5 * (np.arange(chars.size) - np.repeat(starts, lengths))
+    values = np.add.reduceat((chars & 0x1F) << shift, starts)
+    values -= np.where(chars[ends] & 0x10, 1 << (5 * lengths), 0)
+    runs = values.copy()
+    runs[1::2] = np.cumsum(values[1::2])
+    runs[2::2] = np.cumsum(values[2::2])
+    return runs if runs.min() >= 0 else None
+
+
+def _decode_rle(rle: RLE) -> NDArray[np.bool_]:
+    """Decode one validated compressed RLE into an ``[H, W]`` boolean mask.
+
+    Done in numpy rather than ``pycocotools.mask.decode``, which warns under numpy 2 and does
+    not bounds-check its input.
+    """
+    height, width = (int(v) for v in rle["size"])
+    runs = _decode_counts(rle["counts"])
+    if runs is None or int(runs.sum()) != height * width:
+        raise ValueError(f"corrupt RLE counts for a {width}x{height} mask")
+    on = (np.arange(runs.size) % 2).astype(np.bool_)
+    return np.repeat(on, runs).reshape(width, height).T
+
+
+# --------------------------------------------------------------------------- SAM PNG folder
+
+
+def _read_png_folder(folder: Path, stem: str, root: Path) -> AgnosticMasks:
+    """Read a SAM amg.py output folder: ``metadata.csv`` plus one binary PNG per mask id."""
+    ids = _metadata_ids(folder / METADATA_FILE, display_path(folder / METADATA_FILE, root))
+    rles: list[RLE] = []
+    problems: list[Problem] = []
+    first: tuple[str, tuple[int, ...]] | None = None
+    for mask_id in ids:
+        png = folder / f"{mask_id}.png"
+        try:
+            mask = _read_binary_png(png, root)
+        except InputError as err:
+            problems.extend(err.problems)
+            continue
+        if first is not None and mask.shape != first[1]:
+            reason = _png_size_mismatch(mask.shape, first)
+            problems.append(Problem(display_path(png, root), reason))
+        else:
+            first = first or (f"{mask_id}.png", mask.shape)
+            if mask.any():
+                rles.append(_encode(mask))
+    if problems:
+        raise InputError(problems)
+    _log_dropped(stem, len(ids) - len(rles))
+    height, width = first[1] if first is not None else (0, 0)
+    return AgnosticMasks(stem, height, width, tuple(rles), display_path(folder, root))
+
+
+def _png_size_mismatch(shape: tuple[int, ...], first: tuple[str, tuple[int, ...]]) -> str:
+    return (
+        f"mask is {shape[1]}x{shape[0]} but {first[0]} in the same folder is "
+        f"{first[1][1]}x{first[1][0]}"
+    )
+
+
+def _metadata_ids(path: Path, shown: str) -> list[str]:
+    """The mask ids listed in a SAM ``metadata.csv`` (its ``id`` column), in file order."""
+    if not path.is_file():
+        raise InputError.single(shown, "metadata.csv not found (SAM amg.py writes it)")
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.DictReader(handle))
+    except (OSError, UnicodeDecodeError, csv.Error) as err:
+        raise InputError.single(shown, f"cannot read metadata: {err}") from err
+    if rows and "id" not in rows[0]:
+        raise InputError.single(shown, "metadata.csv has no 'id' column")
+    ids = [str(row["id"]).strip() for row in rows]
+    unsafe = [i for i in ids if not i or Path(i).name != i or i.startswith(".")]
+    if unsafe:
+        raise InputError.single(shown, f"ids must be plain file stems, got {unsafe[:3]!r}")
+    duplicates = sorted({i for i in ids if ids.count(i) > 1})
+    missing = [i for i in ids if not (path.parent / f"{i}.png").is_file()]
+    problems = [Problem(shown, f"id {i!r} is listed more than once") for i in duplicates]
+    problems += [Problem(shown, f"id {i!r} has no PNG ({i}.png not found)") for i in missing]
+    if problems:
+        raise InputError(problems)
+    return ids
+
+
+def _read_binary_png(path: Path, root: Path) -> NDArray[np.bool_]:
+    """A single-channel PNG as a boolean mask (non-zero = inside)."""
+    image = read_image(path, root=root)
+    if image.ndim != 2:
+        reason = f"expected a single-channel binary mask, got {image.shape[2]} channels"
+        raise InputError.single(display_path(path, root), reason)
+    mask: NDArray[np.bool_] = image > 0
+    return mask
+
+
+# --------------------------------------------------------------------------- label maps
+
+
+def _read_label_map(path: Path, root: Path) -> tuple[NDArray[np.integer[Any]], int]:
+    """An integer label map and the value below which pixels have no mask."""
+    shown = display_path(path, root)
+    if path.suffix.lower() == ".png":
+        image = read_image(path, root=root)
+        if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
+            raise InputError.single(shown, _label_png_reason(image))
+        return image, 1
+    labels = _load_npy(path, shown)
+    if labels.ndim != 2 or labels.dtype.kind not in "iu":
+        reason = f"expected a 2D integer label map, got {labels.ndim}D {labels.dtype}"
+        raise InputError.single(shown, reason)
+    return labels, 0
+
+
+def _label_png_reason(image: NDArray[Any]) -> str:
+    if image.ndim != 2:
+        return f"expected a single-channel label map, got {image.shape[2]} channels"
+    return f"expected a uint8 or uint16 label map, got {image.dtype}"
+
+
+def _load_npy(path: Path, shown: str) -> NDArray[Any]:
+    try:
+        return np.asarray(np.load(path, allow_pickle=False))
+    except (OSError, ValueError, EOFError) as err:
+        raise InputError.single(shown, f"cannot read .npy array: {err}") from err
+
+
+# --------------------------------------------------------------------------- small helpers
+
+
+def _encode(mask: NDArray[Any]) -> RLE:
+    """Compressed COCO RLE (bytes counts) of one ``[H, W]`` mask."""
+    rle: RLE = mask_util.encode(np.asfortranarray(mask, dtype=np.uint8))
+    return {"size": [int(v) for v in rle["size"]], "counts": rle["counts"]}
+
+
+def _log_dropped(name: str, n_dropped: int) -> None:
+    if n_dropped:
+        logger.debug("%s: dropped %d empty mask(s)", name, n_dropped)

@@ -1,0 +1,362 @@
+"""What every capture layout shares: frame specs, file parsing, and the post-processing.
+
+A layout module only *lists* frames (:class:`Listing` of :class:`FrameSpec`, plus the problems
+it found on the way). :func:`load_capture` then applies ``stride``/``max_frames``, reads images,
+converts depth to metres, resamples, truncates and validates, for every layout in the same way.
+
+Structural problems (missing files, malformed poses or JSON) are reported for every frame of the
+capture; image problems (decoding, sizes) only for the frames selected by ``stride`` and
+``max_frames``, since only those are read.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dcseg.config import CaptureOptions
+from dcseg.errors import InputError, Problem
+from dcseg.io import images
+from dcseg.io.images import display_path, read_image, resize_area, resize_nearest
+from dcseg.types import Capture, Frame, Intrinsics, capture_problems
+
+logger = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+OPTIONS_SOURCE = "CaptureOptions.intrinsics"
+"""The ``source`` of a :class:`Camera` given through the options."""
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole parameters as a layout states them.
+
+    Attributes:
+        fx, fy, cx, cy: in pixels of the colour image.
+        size: the ``(width, height)`` they were stated for, or None to take the image's size.
+        source: where they came from (a file, a JSON path or :data:`OPTIONS_SOURCE`).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    size: tuple[int, int] | None
+    source: str
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    """Where one frame's parts are, before anything is decoded.
+
+    Attributes:
+        name: the frame name (masks are matched to it).
+        rgb, depth: absolute paths of the colour and depth files.
+        c2w: ``[4, 4]`` camera-to-world pose in OpenCV axes (not yet validated).
+        camera: the colour intrinsics.
+        pose_source: where the pose came from, for messages.
+        depth_scale: stored integer depth / ``depth_scale`` = metres (float files are metres).
+        depth_invalid: stored integer values meaning "no depth" besides 0.
+        depth_k: ``[3, 3]`` camera matrix of the depth image when it is registered to the colour
+            image at another resolution (ScanNet); used to resample depth onto the colour grid.
+    """
+
+    name: str
+    rgb: Path
+    depth: Path
+    c2w: NDArray[np.float64]
+    camera: Camera
+    pose_source: str
+    depth_scale: float = 1000.0
+    depth_invalid: tuple[int, ...] = ()
+    depth_k: NDArray[np.float64] | None = None
+
+
+@dataclass
+class Listing:
+    """A layout's frames in capture order, and the problems found while listing them.
+
+    Attributes:
+        specs: the frames that could be listed.
+        problems: everything wrong found so far (reported together with loading problems).
+        resample_depth: whether depth may come at another resolution than colour.
+    """
+
+    specs: list[FrameSpec] = field(default_factory=list)
+    problems: list[Problem] = field(default_factory=list)
+    resample_depth: bool = False
+
+
+def rel(path: Path, root: Path) -> str:
+    """``path`` relative to the capture root, ``/``-separated, for messages."""
+    return display_path(path, root)
+
+
+def missing(path: Path, root: Path, part: str, rgb: Path) -> Problem:
+    """The problem of a frame part that is absent, e.g. ``depth/3.png: missing (...)``."""
+    return Problem(rel(path, root), f"missing (colour {rel(rgb, root)} has no {part})")
+
+
+def add_if_present(listing: Listing, spec: FrameSpec, root: Path) -> None:
+    """Append ``spec`` to the listing, or a ``missing`` problem if its colour or depth is absent."""
+    if not spec.rgb.is_file():
+        listing.problems.append(missing(spec.rgb, root, "colour", spec.rgb))
+    elif not spec.depth.is_file():
+        listing.problems.append(missing(spec.depth, root, "depth", spec.rgb))
+    else:
+        listing.specs.append(spec)
+
+
+def frame_number(stem: str) -> int | None:
+    """The last run of digits in a stem (``frame000012`` -> 12), or None."""
+    digits = re.findall(r"\d+", stem)
+    return int(digits[-1]) if digits else None
+
+
+def numeric_sort_key(stem: str) -> tuple[int, str]:
+    """Sort key putting ``2`` before ``10`` (stems without digits go last, by name)."""
+    number = frame_number(stem)
+    return (number if number is not None else 2**62, stem)
+
+
+def read_matrix_txt(path: Path, root: Path) -> NDArray[np.float64]:
+    """A whitespace-separated 4x4 matrix (ScanNet / 7-Scenes poses and intrinsics).
+
+    Raises:
+        InputError: the file is missing or does not hold 16 numbers in 4 rows.
+    """
+    shown = rel(path, root)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        raise InputError.single(shown, "missing") from None
+    except OSError as exc:
+        raise InputError.single(shown, f"cannot read file ({exc.strerror})") from None
+    try:
+        rows = [[float(v) for v in line.split()] for line in text.splitlines() if line.strip()]
+        matrix = np.array(rows, dtype=np.float64)
+    except ValueError:
+        raise InputError.single(shown, "expected a 4x4 matrix of numbers") from None
+    if matrix.shape != (4, 4):
+        raise InputError.single(shown, f"expected a 4x4 matrix, got {_shape_words(rows)}")
+    return matrix
+
+
+def _shape_words(rows: list[list[float]]) -> str:
+    widths = sorted({len(r) for r in rows})
+    return f"{len(rows)} rows of {'/'.join(str(w) for w in widths) or 0} numbers"
+
+
+def options_camera(options: CaptureOptions) -> Camera | None:
+    """The intrinsics given in ``options``, stated for the native image size."""
+    if options.intrinsics is None:
+        return None
+    fx, fy, cx, cy = (float(v) for v in options.intrinsics)
+    return Camera(fx, fy, cx, cy, None, OPTIONS_SOURCE)
+
+
+def warn_if_options_intrinsics(options: CaptureOptions, layout: str) -> None:
+    """Log that ``options.intrinsics`` is ignored because the capture stores intrinsics."""
+    if options.intrinsics is not None:
+        logger.warning(
+            "%s captures store their own intrinsics; CaptureOptions.intrinsics is ignored", layout
+        )
+
+
+def select(specs: list[FrameSpec], options: CaptureOptions) -> list[FrameSpec]:
+    """Every ``stride``-th frame, at most ``max_frames`` of them."""
+    kept = specs[:: options.stride]
+    return kept if options.max_frames is None else kept[: options.max_frames]
+
+
+def load_capture(
+    listing: Listing, root: Path, layout: str, options: CaptureOptions, shown: str | None = None
+) -> Capture:
+    """Read the selected frames of a listing into a validated :class:`Capture`.
+
+    Args:
+        listing: the layout's frames and listing problems.
+        root: the capture folder (messages name files relative to it).
+        layout: the layout name stored in the capture.
+        options: stride, max_frames, size and depth_trunc.
+        shown: how to name the capture in messages and in ``Capture.root`` (default: ``root``;
+            an archive's path when ``root`` is a temporary extraction folder).
+
+    Returns:
+        The validated capture.
+
+    Raises:
+        InputError: listing every problem of the listing and of the selected frames.
+    """
+    problems = list(listing.problems)
+    frames: list[Frame] = []
+    for spec in select(listing.specs, options):
+        frame, frame_problems = _load_frame(spec, listing.resample_depth, root, options)
+        problems.extend(frame_problems)
+        if frame is not None:
+            frames.append(frame)
+    shown = shown or str(root)
+    if frames or not problems:
+        problems.extend(capture_problems(tuple(frames), shown))
+    if problems:
+        raise InputError(problems)
+    logger.info("read %d frames of a %s capture from %s", len(frames), layout, shown)
+    return Capture(frames=tuple(frames), layout=layout, root=shown)
+
+
+def _load_frame(
+    spec: FrameSpec, resample_depth: bool, root: Path, options: CaptureOptions
+) -> tuple[Frame | None, list[Problem]]:
+    problems: list[Problem] = []
+    rgb = _collect(problems, read_colour, spec.rgb, root)
+    depth = _collect(problems, read_depth, spec, root)
+    if rgb is None or depth is None:
+        return None, problems
+    size = (int(rgb.shape[1]), int(rgb.shape[0]))
+    try:
+        depth = _depth_on_colour_grid(depth, size, spec, resample_depth, root)
+        intrinsics = _native_intrinsics(spec.camera, size, rel(spec.rgb, root))
+    except InputError as exc:
+        return None, [*problems, *exc.problems]
+    return _finish_frame(spec, rgb, depth, intrinsics, root, options), problems
+
+
+def _collect(
+    problems: list[Problem], reader: Callable[[_T, Path], _R], target: _T, root: Path
+) -> _R | None:
+    try:
+        return reader(target, root)
+    except InputError as exc:
+        problems.extend(exc.problems)
+        return None
+
+
+def read_colour(path: Path, root: Path) -> NDArray[np.uint8]:
+    """A colour image as ``[H, W, 3]`` uint8 RGB (grey is replicated, alpha dropped)."""
+    image = read_image(path, root=root)
+    if image.dtype != np.uint8:
+        raise InputError.single(rel(path, root), f"colour must be 8-bit, got {image.dtype}")
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(image[:, :, :3])
+
+
+def read_depth(spec: FrameSpec, root: Path) -> NDArray[np.float32]:
+    """A depth file as ``[H, W]`` float32 metres, 0 = invalid (before any resampling)."""
+    shown = rel(spec.depth, root)
+    raw = _read_npy(spec.depth, shown) if spec.depth.suffix == ".npy" else None
+    if raw is None:
+        raw = read_image(spec.depth, root=root)
+    if raw.ndim != 2:
+        raise InputError.single(
+            shown, f"depth must be a single-channel image, got shape {tuple(raw.shape)}"
+        )
+    if np.issubdtype(raw.dtype, np.floating):
+        return raw.astype(np.float32)
+    if raw.dtype not in (np.uint16, np.uint32, np.int32):
+        raise InputError.single(shown, f"depth must be 16-bit or float, got {raw.dtype}")
+    metres = raw.astype(np.float32) / np.float32(spec.depth_scale)
+    for value in spec.depth_invalid:
+        metres[raw == value] = 0.0
+    return metres
+
+
+def _read_npy(path: Path, shown: str) -> NDArray[Any]:
+    try:
+        mapped = np.load(path, mmap_mode="r", allow_pickle=False)
+    except FileNotFoundError:
+        raise InputError.single(shown, "missing") from None
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputError.single(shown, f"cannot read .npy depth ({exc})") from None
+    if mapped.size > images.MAX_PIXELS:
+        raise InputError.single(
+            shown,
+            f"depth array has {mapped.size:,} values, above the limit of {images.MAX_PIXELS:,}",
+        )
+    return np.array(mapped)
+
+
+def _depth_on_colour_grid(
+    depth: NDArray[np.float32],
+    size: tuple[int, int],
+    spec: FrameSpec,
+    resample_depth: bool,
+    root: Path,
+) -> NDArray[np.float32]:
+    depth_size = (int(depth.shape[1]), int(depth.shape[0]))
+    if depth_size == size:
+        return depth
+    if not resample_depth:
+        raise InputError.single(
+            rel(spec.depth, root),
+            f"depth size {depth_size[0]}x{depth_size[1]} does not match "
+            f"colour size {size[0]}x{size[1]} ({rel(spec.rgb, root)})",
+        )
+    if spec.depth_k is None:
+        return resize_nearest(depth, size)
+    return _register_depth(depth, spec.depth_k, spec.camera, size)
+
+
+def _register_depth(
+    depth: NDArray[np.float32], depth_k: NDArray[np.float64], camera: Camera, size: tuple[int, int]
+) -> NDArray[np.float32]:
+    """Nearest-neighbour lookup of depth for each colour pixel through both camera matrices."""
+    u = (np.arange(size[0]) - camera.cx) / camera.fx
+    v = (np.arange(size[1]) - camera.cy) / camera.fy
+    cols = np.rint(depth_k[0, 0] * u + depth_k[0, 2]).astype(np.int64)
+    rows = np.rint(depth_k[1, 1] * v + depth_k[1, 2]).astype(np.int64)
+    height, width = depth.shape
+    ok_c, ok_r = (cols >= 0) & (cols < width), (rows >= 0) & (rows < height)
+    out = depth[np.clip(rows, 0, height - 1)[:, None], np.clip(cols, 0, width - 1)[None, :]]
+    out = np.where(ok_r[:, None] & ok_c[None, :], out, np.float32(0.0))
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
+def _native_intrinsics(camera: Camera, size: tuple[int, int], rgb: str) -> Intrinsics:
+    stated = camera.size or size
+    if stated != size:
+        raise InputError.single(
+            camera.source,
+            f"intrinsics are for {stated[0]}x{stated[1]} but the image {rgb} is "
+            f"{size[0]}x{size[1]}",
+        )
+    return Intrinsics(camera.fx, camera.fy, camera.cx, camera.cy, size[0], size[1])
+
+
+def _finish_frame(
+    spec: FrameSpec,
+    rgb: NDArray[np.uint8],
+    depth: NDArray[np.float32],
+    intrinsics: Intrinsics,
+    root: Path,
+    options: CaptureOptions,
+) -> Frame:
+    if options.size is not None:
+        rgb = resize_area(rgb, options.size)
+        depth = resize_nearest(depth, options.size)
+        intrinsics = intrinsics.scaled(*options.size)
+    if options.depth_trunc is not None:
+        depth = np.where(depth > options.depth_trunc, np.float32(0.0), depth)
+    files = {
+        "rgb": rel(spec.rgb, root),
+        "depth": rel(spec.depth, root),
+        "pose": spec.pose_source,
+        "intrinsics": spec.camera.source,
+    }
+    return Frame(
+        name=spec.name,
+        rgb=np.ascontiguousarray(rgb, dtype=np.uint8),
+        depth=np.ascontiguousarray(depth, dtype=np.float32),
+        intrinsics=intrinsics,
+        c2w=np.array(spec.c2w, dtype=np.float64),
+        files=files,
+    )

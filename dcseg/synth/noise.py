@@ -1,0 +1,124 @@
+"""Noise levels for simulated segmenter output and depth, and the depth-noise model."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class NoiseLevel:
+    """How imperfect the simulated 2D masks and depth are (all probabilities are per view).
+
+    Attributes:
+        part_prob: chance an object also gets two part masks (split by a 3D plane).
+        group_prob: chance a support (table, tray) also gets a mask uniting it with its objects.
+        wall_split_prob: chance a wall/floor mask is over-split into 2-4 pieces.
+        jitter_prob: chance a mask's boundary is dilated or eroded.
+        jitter_px: largest boundary dilation/erosion in pixels.
+        miss_prob: chance any agnostic mask is dropped.
+        spurious_rate: mean number of spurious elliptical blobs per view.
+        bleed_prob: chance a class bleeds into its neighbours in the class map.
+        bleed_px: largest bleeding distance in pixels.
+        confuse_prob: chance a whole instance gets its confusable class in a view.
+        rare_miss_prob: chance a rare-class instance is unlabelled or mislabelled in a view.
+        hole_rate: mean number of unlabelled (-1) elliptical holes per view.
+        depth_sigma: Gaussian depth noise standard deviation at 1 m (grows with z squared).
+        edge_drop_prob: chance a pixel at a depth discontinuity loses its depth.
+        random_drop_prob: chance any pixel loses its depth.
+    """
+
+    part_prob: float = 0.0
+    group_prob: float = 0.0
+    wall_split_prob: float = 0.0
+    jitter_prob: float = 0.0
+    jitter_px: int = 0
+    miss_prob: float = 0.0
+    spurious_rate: float = 0.0
+    bleed_prob: float = 0.0
+    bleed_px: int = 0
+    confuse_prob: float = 0.0
+    rare_miss_prob: float = 0.0
+    hole_rate: float = 0.0
+    depth_sigma: float = 0.0
+    edge_drop_prob: float = 0.0
+    random_drop_prob: float = 0.0
+
+
+NOISE_LEVELS: dict[str, NoiseLevel] = {
+    "clean": NoiseLevel(),
+    "default": NoiseLevel(
+        part_prob=0.35,
+        group_prob=0.3,
+        wall_split_prob=0.5,
+        jitter_prob=0.5,
+        jitter_px=2,
+        miss_prob=0.1,
+        spurious_rate=1.0,
+        bleed_prob=0.5,
+        bleed_px=2,
+        confuse_prob=0.12,
+        rare_miss_prob=0.6,
+        hole_rate=1.0,
+        depth_sigma=0.0015,
+        edge_drop_prob=0.5,
+        random_drop_prob=0.002,
+    ),
+    "heavy": NoiseLevel(
+        part_prob=0.6,
+        group_prob=0.5,
+        wall_split_prob=0.8,
+        jitter_prob=0.8,
+        jitter_px=3,
+        miss_prob=0.25,
+        spurious_rate=3.0,
+        bleed_prob=0.8,
+        bleed_px=4,
+        confuse_prob=0.35,
+        rare_miss_prob=0.85,
+        hole_rate=3.0,
+        depth_sigma=0.004,
+        edge_drop_prob=0.9,
+        random_drop_prob=0.01,
+    ),
+}
+"""The named noise levels of ``dcseg synth --noise``."""
+
+
+def noisy_depth(
+    depth: NDArray[np.float32], level: NoiseLevel, rng: np.random.Generator
+) -> NDArray[np.float32]:
+    """Sensor-like depth: z-dependent Gaussian noise, holes at discontinuities and at random.
+
+    Args:
+        depth: ``[H, W]`` clean metric depth, 0 = invalid.
+        level: the noise level.
+        rng: seeded generator for this view.
+
+    Returns:
+        ``[H, W]`` float32 depth, 0 = invalid (never negative).
+    """
+    out = depth.astype(np.float64)
+    valid = out > 0
+    if level.depth_sigma > 0:
+        out = out + rng.normal(0.0, 1.0, out.shape) * level.depth_sigma * out * out
+    drop = rng.random(out.shape) < level.random_drop_prob
+    if level.edge_drop_prob > 0:
+        drop |= _depth_edges(depth) & (rng.random(out.shape) < level.edge_drop_prob)
+    out[drop | ~valid] = 0.0
+    return np.maximum(out, 0.0).astype(np.float32)
+
+
+def _depth_edges(depth: NDArray[np.float32], jump: float = 0.05) -> NDArray[np.bool_]:
+    """Pixels next to a depth jump larger than ``jump`` times the depth (or to invalid depth)."""
+    d = depth.astype(np.float64)
+    edges = np.zeros(d.shape, dtype=bool)
+    dy = np.abs(np.diff(d, axis=0)) > jump * np.maximum(d[1:], d[:-1])
+    dx = np.abs(np.diff(d, axis=1)) > jump * np.maximum(d[:, 1:], d[:, :-1])
+    edges[1:] |= dy
+    edges[:-1] |= dy
+    edges[:, 1:] |= dx
+    edges[:, :-1] |= dx
+    return edges

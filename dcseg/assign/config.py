@@ -1,0 +1,43 @@
+"""Parameters of the assignment stage (stdlib only: this module must never import torch)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+AssignMode = Literal["assignment", "matching"]
+
+
+@dataclass(frozen=True)
+class AssignConfig:
+    """How clusters get class labels from per-view class-aware 2D masks (method doc §6, B.7).
+
+    Attributes:
+        mode: ``"assignment"`` (each class may take up to ``replicas`` clusters per view; the
+            paper's best variant) or ``"matching"`` (one-to-one; the ablation).
+        replicas: class replicas per view in ``"assignment"`` mode: a fixed count (paper: 3)
+            or ``"components"`` = the number of connected components of the class's mask in
+            that view with at least ``min_area`` pixels (1 for a class that is present only in
+            smaller pieces).
+        min_iou: edges with IoU below this are invalid: never matched, never voted (paper 0.05).
+        min_area: 2D connected-component filter: cluster-mask components (8-connectivity)
+            smaller than this many pixels are removed before computing IoU (paper: 1000 px at
+            1200x680; scale it with the image area). 0 disables the filter.
+    """
+
+    mode: AssignMode = "assignment"
+    replicas: int | Literal["components"] = 3
+    min_iou: float = 0.05
+    min_area: int = 1000
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("assignment", "matching"):
+            raise ValueError(f"mode must be 'assignment' or 'matching', got {self.mode!r}")
+        if self.replicas != "components" and not (
+            isinstance(self.replicas, int) and self.replicas >= 1
+        ):
+            raise ValueError(f"replicas must be an int >= 1 or 'components', got {self.replicas!r}")
+        if not 0.0 < self.min_iou <= 1.0:
+            raise ValueError(f"min_iou must be in (0, 1], got {self.min_iou}")
+        if self.min_area < 0:
+            raise ValueError(f"min_area must be >= 0, got {self.min_area}")

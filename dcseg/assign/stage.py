@@ -1,0 +1,120 @@
+"""The assignment stage's entry point: per-view cluster maps + class maps -> cluster labels."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dcseg.assign.config import AssignConfig
+from dcseg.assign.masks import clean_cluster_map, component_counts, mask_iou
+from dcseg.assign.matching import Match, match_view
+from dcseg.assign.vote import decide, tally
+
+
+@dataclass(frozen=True)
+class Assignment:
+    """Class labels of K clusters (arrays are read-only).
+
+    Attributes:
+        labels: ``[K]`` int64 class index per cluster, -1 = never matched (unlabelled).
+        scores: ``[K]`` float64 winning class's share of the cluster's summed IoU votes,
+            0 when unlabelled.
+        votes: ``[K, C]`` float64 IoU of every matched (cluster, class) pair summed over views.
+        n_views: ``[K]`` int64 number of views in which the cluster was matched to a class.
+    """
+
+    labels: NDArray[np.int64]
+    scores: NDArray[np.float64]
+    votes: NDArray[np.float64]
+    n_views: NDArray[np.int64]
+
+    def __post_init__(self) -> None:
+        for array in (self.labels, self.scores, self.votes, self.n_views):
+            array.flags.writeable = False
+
+
+def view_matches(
+    cluster_ids: NDArray[Any],
+    class_map: NDArray[Any],
+    n_clusters: int,
+    n_classes: int,
+    cfg: AssignConfig,
+) -> list[Match]:
+    """Clean one view's cluster map, compute IoU with its class map, and match.
+
+    Args:
+        cluster_ids: ``[H, W]`` int cluster id per pixel, -1 = none.
+        class_map: ``[H, W]`` int class index per pixel, -1 = none.
+        n_clusters: K.
+        n_classes: C.
+        cfg: the stage's parameters.
+
+    Returns:
+        The view's ``(cluster, class, iou)`` matches.
+    """
+    cleaned = clean_cluster_map(cluster_ids, cfg.min_area)
+    iou = mask_iou(cleaned, class_map, n_clusters, n_classes)
+    counts = None
+    if cfg.mode == "assignment" and cfg.replicas == "components":
+        counts = component_counts(class_map, n_classes, cfg.min_area)
+    return match_view(iou, cfg, counts=counts)
+
+
+def _matches_per_view(
+    cluster_maps: Sequence[NDArray[Any]],
+    class_maps: Sequence[NDArray[Any]],
+    n_clusters: int,
+    n_classes: int,
+    cfg: AssignConfig,
+) -> Iterator[list[Match]]:
+    for i, (ids, classes) in enumerate(zip(cluster_maps, class_maps, strict=True)):
+        if np.shape(ids) != np.shape(classes):
+            raise ValueError(
+                f"view {i}: cluster map {np.shape(ids)} and class map {np.shape(classes)} differ"
+            )
+        yield view_matches(ids, classes, n_clusters, n_classes, cfg)
+
+
+def assign_labels(
+    cluster_maps: Sequence[NDArray[Any]],
+    class_maps: Sequence[NDArray[Any]],
+    n_clusters: int,
+    n_classes: int,
+    cfg: AssignConfig,
+) -> Assignment:
+    """Label clusters with classes by per-view matching and IoU-weighted voting (§6, B.7).
+
+    Per view: clean the cluster map (2D connected-component filter), compute the ``[K, C]``
+    IoU with the class map, match (:func:`~dcseg.assign.matching.match_view`); then sum the
+    matched IoUs per (cluster, class) over views and take the best class per cluster. Views
+    are processed one at a time: memory is O(H x W + K x C).
+
+    Args:
+        cluster_maps: per view, ``[H, W]`` int cluster id per pixel (-1 = none), e.g. the
+            argmax of rendered cluster weights above the mask threshold.
+        class_maps: per view, ``[H, W]`` int class index (-1 = none), e.g.
+            ``SemanticMap.classes``; same sizes as the cluster maps.
+        n_clusters: K.
+        n_classes: C, the vocabulary size.
+        cfg: the stage's parameters.
+
+    Returns:
+        :class:`Assignment` with ``labels [K]`` (-1 = unlabelled), ``scores [K]``,
+        ``votes [K, C]``, ``n_views [K]``.
+
+    Example:
+        >>> ids = np.array([[0, 0, 1, 1], [0, 0, 1, 1]])
+        >>> classes = np.array([[2, 2, 0, 0], [2, 2, 0, -1]])
+        >>> assign_labels([ids], [classes], 2, 3, AssignConfig(min_area=0)).labels.tolist()
+        [2, 0]
+    """
+    if len(cluster_maps) != len(class_maps):
+        raise ValueError(f"{len(cluster_maps)} cluster maps but {len(class_maps)} class maps")
+    views = _matches_per_view(cluster_maps, class_maps, n_clusters, n_classes, cfg)
+    votes, n_views = tally(views, n_clusters, n_classes)
+    labels, scores = decide(votes)
+    return Assignment(labels=labels, scores=scores, votes=votes, n_views=n_views)

@@ -1,0 +1,103 @@
+"""Parameters of the clustering stage (stdlib only: this module must never import torch)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+ClustererName = Literal["hdbscan", "sklearn"]
+
+
+@dataclass(frozen=True)
+class ClusterConfig:
+    """How Gaussian affinity features become instance clusters.
+
+    Defaults follow the paper code (method doc §4, §8) except where Part B decides otherwise
+    (seeded sample with a size floor and cap; 3D outlier removal, Part B.6).
+
+    **``min_samples`` convention.** The two HDBSCAN implementations disagree by one:
+    scikit-learn's ``sklearn.cluster.HDBSCAN`` counts the point itself in its ``min_samples``
+    neighbourhood (its core distance is the distance to the ``min_samples``-th neighbour *with*
+    the point as the first one), whereas the scikit-learn-contrib ``hdbscan`` package does not:
+    it queries ``min_samples + 1`` neighbours and takes the last, i.e. the ``min_samples``-th
+    *other* point (``hdbscan/hdbscan_.py``, ``_hdbscan_prims_kdtree``; its own docstring says
+    "This includes the point itself", but the code does not). scikit-learn's ``HDBSCAN`` Notes
+    state the consequence: its ``min_samples`` "must be 1 greater" to reproduce contrib results.
+    Checked on hdbscan 0.8.44 / scikit-learn 1.9.1: contrib ``min_samples=m`` and sklearn
+    ``min_samples=m+1`` build identical single-linkage trees. dcseg uses the **contrib meaning**
+    (the paper ran contrib ``hdbscan``): ``min_samples`` is the number of *other* points in the
+    neighbourhood, and the ``"sklearn"`` backend adds 1 before calling scikit-learn.
+
+    Attributes:
+        clusterer: HDBSCAN backend: ``"hdbscan"`` (scikit-learn-contrib, the paper's) or
+            ``"sklearn"`` (``sklearn.cluster.HDBSCAN``).
+        seed: seed of the random sample HDBSCAN is fitted on.
+        sample_fraction: fraction of the Gaussians HDBSCAN is fitted on (paper: 0.02).
+        min_sample_size: the sample has at least ``min(N, min_sample_size)`` Gaussians.
+        max_sample_size: and at most this many (HDBSCAN on CPU grows super-linearly).
+        min_cluster_size: HDBSCAN ``min_cluster_size`` (paper: 10).
+        min_samples: HDBSCAN ``min_samples`` in the contrib meaning (see above); None = the
+            same as ``min_cluster_size`` (paper).
+        cluster_selection_epsilon: HDBSCAN ``cluster_selection_epsilon`` on L2-normalised
+            features (paper: 0.01).
+        min_similarity: a Gaussian whose best cosine similarity to any cluster centre is below
+            this stays unassigned (-1) (paper: 0.5).
+        remove_outliers: run the 3D connected-component outlier removal (Part B.6).
+        outlier_radius: radius (world units) of the per-cluster radius graph; None = adaptive,
+            ``radius_factor`` x the median nearest-neighbour spacing of all Gaussian centres.
+        radius_factor: multiplier of the adaptive radius.
+        min_component_size: components with fewer Gaussians than this become noise.
+        min_component_fraction: components holding less than this fraction of their cluster's
+            total weight (e.g. opacity) become noise.
+    """
+
+    clusterer: ClustererName = "hdbscan"
+    seed: int = 0
+    sample_fraction: float = 0.02
+    min_sample_size: int = 2000
+    max_sample_size: int = 20000
+    min_cluster_size: int = 10
+    min_samples: int | None = None
+    cluster_selection_epsilon: float = 0.01
+    min_similarity: float = 0.5
+    remove_outliers: bool = True
+    outlier_radius: float | None = None
+    radius_factor: float = 3.0
+    min_component_size: int = 10
+    min_component_fraction: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.clusterer not in ("hdbscan", "sklearn"):
+            raise ValueError(f"clusterer must be 'hdbscan' or 'sklearn', got {self.clusterer!r}")
+        if not 0.0 < self.sample_fraction <= 1.0:
+            raise ValueError(f"sample_fraction must be in (0, 1], got {self.sample_fraction}")
+        if self.min_sample_size < 1 or self.max_sample_size < self.min_sample_size:
+            raise ValueError(
+                "need 1 <= min_sample_size <= max_sample_size, got "
+                f"{self.min_sample_size} and {self.max_sample_size}"
+            )
+        if self.min_cluster_size < 2:
+            raise ValueError(f"min_cluster_size must be >= 2, got {self.min_cluster_size}")
+        if self.min_samples is not None and self.min_samples < 1:
+            raise ValueError(f"min_samples must be >= 1 or None, got {self.min_samples}")
+        if self.cluster_selection_epsilon < 0:
+            raise ValueError(
+                f"cluster_selection_epsilon must be >= 0, got {self.cluster_selection_epsilon}"
+            )
+        if not -1.0 <= self.min_similarity <= 1.0:
+            raise ValueError(f"min_similarity must be in [-1, 1], got {self.min_similarity}")
+        if self.outlier_radius is not None and self.outlier_radius <= 0:
+            raise ValueError(f"outlier_radius must be > 0 or None, got {self.outlier_radius}")
+        if self.radius_factor <= 0:
+            raise ValueError(f"radius_factor must be > 0, got {self.radius_factor}")
+        if self.min_component_size < 1:
+            raise ValueError(f"min_component_size must be >= 1, got {self.min_component_size}")
+        if not 0.0 <= self.min_component_fraction <= 1.0:
+            raise ValueError(
+                f"min_component_fraction must be in [0, 1], got {self.min_component_fraction}"
+            )
+
+    @property
+    def resolved_min_samples(self) -> int:
+        """``min_samples`` in the contrib meaning, with None resolved to ``min_cluster_size``."""
+        return self.min_cluster_size if self.min_samples is None else self.min_samples

@@ -1,0 +1,126 @@
+"""3D outlier removal (method doc Part B.6): drop small, disconnected fragments of clusters.
+
+Each cluster's Gaussian centres form a radius graph; connected components that are too small
+(by count or by weight share) become noise. Memory is O(edges) of the largest cluster's graph.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+_SPACING_QUERIES = 100_000
+"""At most this many Gaussians are queried to estimate the median nearest-neighbour spacing."""
+
+
+def adaptive_radius(positions: NDArray[np.float64], factor: float, seed: int = 0) -> float:
+    """``factor`` x the median nearest-neighbour distance between Gaussian centres.
+
+    Args:
+        positions: ``[N, 3]`` Gaussian centres.
+        factor: multiplier (e.g. 3.0).
+        seed: seeds the subset of at most 100 000 centres whose spacing is measured.
+
+    Returns:
+        The radius; 0.0 when fewer than two distinct centres exist.
+    """
+    n = len(positions)
+    if n < 2:
+        return 0.0
+    tree = cKDTree(positions)
+    queries = positions
+    if n > _SPACING_QUERIES:
+        rng = np.random.default_rng(seed)
+        queries = positions[rng.choice(n, size=_SPACING_QUERIES, replace=False)]
+    dist, _ = tree.query(queries, k=2)
+    positive = dist[:, 1][dist[:, 1] > 0]
+    return float(factor * np.median(positive)) if positive.size else 0.0
+
+
+def component_labels(positions: NDArray[np.float64], radius: float) -> NDArray[np.int64]:
+    """Connected components of the radius graph (edge iff distance <= radius) -> ``[M]`` ids."""
+    m = len(positions)
+    pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), (m, m))
+    _, comp = connected_components(graph, directed=False)
+    return np.asarray(comp, dtype=np.int64)
+
+
+def _small_components(
+    comp: NDArray[np.int64], weights: NDArray[np.float64], min_size: int, min_fraction: float
+) -> NDArray[np.bool_]:
+    """Per member: does its component fall below the size or weight-share threshold?"""
+    sizes = np.bincount(comp)
+    comp_weight = np.bincount(comp, weights=weights)
+    total = comp_weight.sum()
+    share = comp_weight / total if total > 0 else sizes / sizes.sum()
+    small = (sizes < min_size) | (share < min_fraction)
+    return np.asarray(small[comp], dtype=np.bool_)
+
+
+def remove_outliers_3d(
+    positions: NDArray[np.float64],
+    labels: NDArray[np.int64],
+    weights: NDArray[np.float64],
+    *,
+    radius: float,
+    min_component_size: int,
+    min_component_fraction: float,
+) -> NDArray[np.int64]:
+    """Set Gaussians in small, disconnected fragments of their cluster to -1.
+
+    For every cluster, its Gaussian centres are linked when closer than ``radius``; each
+    connected component with fewer than ``min_component_size`` Gaussians, or with less than
+    ``min_component_fraction`` of the cluster's total weight, is dropped. Cluster ids are not
+    re-indexed here (a cluster may become empty).
+
+    Args:
+        positions: ``[N, 3]`` Gaussian centres.
+        labels: ``[N]`` int64 cluster ids, -1 = noise (left untouched).
+        weights: ``[N]`` non-negative weights, e.g. activated opacity. A cluster whose total
+            weight is 0 uses Gaussian counts instead.
+        radius: graph radius in world units (> 0).
+        min_component_size: minimum Gaussians per kept component.
+        min_component_fraction: minimum weight share of a kept component within its cluster.
+
+    Returns:
+        ``[N]`` int64 labels with the dropped Gaussians set to -1 (a new array).
+    """
+    if radius <= 0:
+        raise ValueError(f"radius must be > 0, got {radius}")
+    out = labels.copy()
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(int(labels.max(initial=-1)) + 2))
+    for k in range(len(bounds) - 1):
+        members = order[bounds[k] : bounds[k + 1]]
+        if len(members) == 0:
+            continue
+        comp = component_labels(positions[members], radius)
+        small = _small_components(
+            comp, weights[members], min_component_size, min_component_fraction
+        )
+        out[members[small]] = -1
+    return out
+
+
+def compact_labels(
+    labels: NDArray[np.int64], centers: NDArray[np.float32]
+) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+    """Remove clusters without members; re-index the rest to ``0..K'-1`` keeping their order.
+
+    Args:
+        labels: ``[N]`` int64 cluster ids, -1 = noise.
+        centers: ``[K, D]`` centres indexed by the old ids.
+
+    Returns:
+        ``labels [N]`` (new ids, -1 kept) and ``centers [K', D]``.
+    """
+    if len(centers) == 0:
+        return labels.copy(), centers
+    used = np.bincount(labels[labels >= 0], minlength=len(centers)) > 0
+    new_id = np.cumsum(used) - 1
+    out = np.where(labels >= 0, new_id[np.maximum(labels, 0)], -1).astype(np.int64)
+    return out, centers[used]

@@ -24,7 +24,7 @@ class BlendWeights:
         height, width: the view's resolution.
         offsets: ``[H*W + 1]`` int64; the contributions of pixel ``p`` are
             ``ids[offsets[p]:offsets[p+1]]`` with ``weights[offsets[p]:offsets[p+1]]``.
-        ids: ``[nnz]`` int64 Gaussian indices, front to back within a pixel.
+        ids: ``[nnz]`` int32 or int64 Gaussian indices, front to back within a pixel.
         weights: ``[nnz]`` float32 blending weights ``alpha * T``.
     """
 
@@ -73,13 +73,14 @@ class BlendWeights:
         row = torch.repeat_interleave(torch.arange(pixels.shape[0], device=pixels.device), counts)
         first = torch.repeat_interleave(starts - torch.cumsum(counts, 0) + counts, counts)
         entry = first + torch.arange(row.shape[0], device=pixels.device)
-        contrib = values[self.ids[entry]] * self.weights[entry, None].to(values.dtype)
+        ids = self.ids[entry]
+        contrib = values.index_select(0, ids) * self.weights[entry, None].to(values.dtype)
         out = values.new_zeros((pixels.shape[0], values.shape[1]))
         return out.index_add(0, row, contrib)
 
     def render(self, values: Tensor) -> Tensor:
         """Blend per-Gaussian values at every pixel: ``[N, C]`` -> ``[H, W, C]``."""
-        contrib = values[self.ids] * self.weights[:, None].to(values.dtype)
+        contrib = values.index_select(0, self.ids) * self.weights[:, None].to(values.dtype)
         out = values.new_zeros((self.height * self.width, values.shape[1]))
         out = out.index_add(0, self.rows(), contrib)
         return out.reshape(self.height, self.width, values.shape[1])

@@ -1,0 +1,94 @@
+"""Parameters of the affinity stage: a stdlib dataclass, never importing torch.
+
+The defaults are the ``paper`` values (method doc Part A §3 and §8, SAGA's
+``train_contrastive_feature.py`` as run by DCSEG); :data:`PRESETS` holds the named variants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+
+@dataclass(frozen=True)
+class AffinityConfig:
+    """How scale-gated contrastive affinity features are trained on frozen Gaussians."""
+
+    feature_dim: int = 32
+    """Feature channels D per Gaussian (= outputs of the scale gate)."""
+
+    iterations: int = 10_000
+    """Optimisation steps; one random view with masks per step (without replacement per epoch)."""
+
+    rays: int = 1000
+    """Pixels sampled per step among the pixels covered by at least one mask."""
+
+    random_scales: int = 8
+    """Scale samples drawn from random masks per step; plus one above-max and one smallest."""
+
+    lr: float = 0.0025
+    """Adam learning rate of the features and the gate (constant)."""
+
+    adam_eps: float = 1e-15
+    """Adam epsilon."""
+
+    init_std: float = 0.01
+    """Features start as ``N(0, 1) * init_std``."""
+
+    knn_k: int = 16
+    """Neighbours (the Gaussian itself included) of the 3D KNN feature smoothing."""
+
+    knn_sample: int = 8
+    """Neighbour slots averaged per training step (same random slots for every Gaussian)."""
+
+    pos_threshold: float = 0.75
+    """Hard-positive mining: pairs with affinity 1 and cosine below this are kept."""
+
+    neg_threshold: float = 0.5
+    """Hard-negative mining: pairs with affinity 0 and cosine above this are kept."""
+
+    max_pair_weight: float = 10.0
+    """Pair weights are min-max rescaled to ``[1, max_pair_weight]``."""
+
+    norm_weight: float = 1.0
+    """Weight of ``(1 - mean ||F(p)||)^2`` over the sampled pixels (SAGA's ``rfn``)."""
+
+    n_quantiles: int = 1000
+    """Quantiles of the scale normalisation (sklearn ``QuantileTransformer`` default)."""
+
+    min_scale_points: int = 10
+    """A mask with fewer valid 3D points (after erosion) has no scale and is not used."""
+
+    seed: int = 0
+    """Seed of every random choice (initialisation, views, pixels, scales, pair sampling)."""
+
+    def __post_init__(self) -> None:
+        positive = ("feature_dim", "rays", "knn_k", "knn_sample", "n_quantiles")
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.iterations < 0:
+            raise ValueError(f"iterations must be >= 0, got {self.iterations}")
+        if self.random_scales < 0:
+            raise ValueError(f"random_scales must be >= 0, got {self.random_scales}")
+        if self.knn_sample > self.knn_k:
+            raise ValueError(f"knn_sample ({self.knn_sample}) must be at most knn_k ({self.knn_k})")
+        if self.lr <= 0 or self.adam_eps <= 0 or self.init_std <= 0:
+            raise ValueError("lr, adam_eps and init_std must be > 0")
+        if not -1.0 <= self.neg_threshold <= 1.0 or not -1.0 <= self.pos_threshold <= 1.0:
+            raise ValueError("pos_threshold and neg_threshold must be in [-1, 1]")
+        if self.max_pair_weight < 1.0:
+            raise ValueError(f"max_pair_weight must be >= 1, got {self.max_pair_weight}")
+        if self.norm_weight < 0:
+            raise ValueError(f"norm_weight must be >= 0, got {self.norm_weight}")
+        if self.min_scale_points < 2:
+            raise ValueError(f"min_scale_points must be >= 2, got {self.min_scale_points}")
+
+
+PAPER = AffinityConfig()
+"""SAGA as run by DCSEG: 10k steps, 1000 rays, D = 32, K = 16 (8 per step)."""
+
+FAST = replace(PAPER, iterations=2000)
+"""Minutes on a CPU: 2000 steps, everything else as in the paper."""
+
+PRESETS: dict[str, AffinityConfig] = {"fast": FAST, "paper": PAPER}
+"""Named configurations."""

@@ -1,0 +1,155 @@
+"""The scale-gated contrastive loss with SAGA's pair mining (method doc Part A §3.4).
+
+Pure functions of tensors; ``contrastive_loss`` is gradchecked in float64 and compared with the
+plain full-matrix formula (``tests/dcseg/affinity/test_loss.py``). The pair sets are chosen
+without gradient: they are piecewise constant in the cosines.
+
+Speed: the ``[T, S, S]`` work is memory-bound, so it runs over blocks of rows (cache-sized
+``[T, B, S - r0]`` slabs, columns of the upper triangle only), and the loss is written as
+``sum_t sum_pq k_t(p, q) C_t(p, q)`` with coefficients ``k`` fixed under ``no_grad`` (pair sets,
+``G``, the ``max(C, 0)`` switch), so no differentiable ``[T, S, S]`` cosine tensor is kept.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+_SHIFT = 4.0
+_SPLIT = -2.0
+# Positive-pair cosines are shifted by -_SHIFT into [-5, -3]; negatives stay in [-1, 1]. One
+# min/max over scales then answers every mining question (see _select).
+
+
+def contrastive_loss(
+    features: Tensor,
+    gates: Tensor,
+    affinity: Tensor,
+    weights: Tensor,
+    draw: Tensor,
+    *,
+    pos_threshold: float = 0.75,
+    neg_threshold: float = 0.5,
+    norm_weight: float = 1.0,
+    block_rows: int = 64,
+) -> Tensor:
+    """Contrastive loss of the rendered features of S sampled pixels at T scales.
+
+    ``phi_t(p) = normalize(F(p) * g_t)``, ``C_t = phi_t phi_t^T`` and
+
+    ``L = -mean_{t, Pi+}[w G C] + mean_{t, Pi-}[w (1 - G) max(C, 0)]
+    + norm_weight (1 - mean_p ||F(p)||)^2``
+
+    with the pair sets of :func:`mine_pairs` (an empty set contributes 0, where SAGA would
+    average over nothing and produce NaN).
+
+    Args:
+        features: ``[S, D]`` rendered features ``F(p)``.
+        gates: ``[T, D]`` scale gates ``g_t``.
+        affinity: ``[T, S, S]`` bool ground truth ``G_t(p, q)``.
+        weights: ``[S, S]`` pair weights ``w_pq``.
+        draw: ``[S, S]`` uniform ``[0, 1)`` draws for subsampling the consistent pairs.
+        pos_threshold, neg_threshold: hard-mining cosine thresholds (0.75, 0.5).
+        norm_weight: weight of the feature-norm regulariser (SAGA's ``rfn``).
+        block_rows: rows per block of the pair computations (speed only).
+
+    Returns:
+        The scalar loss.
+    """
+    phi = F.normalize(features[None, :, :] * gates[:, None, :], dim=-1)  # [T, S, D]
+    blocks = _row_blocks(phi.shape[1], block_rows)
+    with torch.no_grad():
+        shifted = [_shifted_block(phi, affinity, r0, r1) for r0, r1 in blocks]
+        low, high = _extremes(shifted, blocks, phi.shape[1], phi.dtype)
+        pos, neg = _select(low, high, affinity, draw, pos_threshold, neg_threshold)
+        a, b = _pair_scales(weights.to(phi.dtype), pos, neg, phi.shape[0])
+    pairs = phi.new_zeros(())
+    for (r0, r1), u in zip(blocks, shifted, strict=True):
+        with torch.no_grad():  # u < -2 <=> G = 1; u > 0 <=> G = 0 and C > 0
+            coef = torch.where(u < _SPLIT, -a[r0:r1, r0:], u.gt_(0.0).mul_(b[r0:r1, r0:]))
+        pairs = pairs + (phi[:, r0:r1] * (coef @ phi[:, r0:])).sum()
+    norm = features.norm(dim=-1).mean() if features.shape[0] else features.new_zeros(())
+    return pairs + norm_weight * (1.0 - norm) ** 2
+
+
+@torch.no_grad()
+def mine_pairs(
+    cos: Tensor,
+    affinity: Tensor,
+    draw: Tensor,
+    pos_threshold: float = 0.75,
+    neg_threshold: float = 0.5,
+) -> tuple[Tensor, Tensor]:
+    """SAGA's pair sets ``(Pi+, Pi-)`` as ``[S, S]`` bool masks over the upper triangle p < q.
+
+    With ``Z = sum_t G_t`` over the full matrix: consistent positives (Z = T) and negatives
+    (Z = 0) are each kept with probability ``n / count`` where n is half the number of
+    inconsistent pairs; hard positives (``G_t = 1`` and ``C_t < pos_threshold`` for some t), hard
+    negatives (``G_t = 0`` and ``C_t > neg_threshold`` for some t) and all inconsistent pairs
+    join both sets.
+
+    Args:
+        cos: ``[T, S, S]`` cosines in ``[-1, 1]``.
+        affinity: ``[T, S, S]`` bool ground truth.
+        draw: ``[S, S]`` uniform ``[0, 1)`` draws.
+    """
+    shifted = torch.where(affinity, cos - _SHIFT, cos)
+    low, high = shifted.amin(0), shifted.amax(0)
+    return _select(low, high, affinity, draw, pos_threshold, neg_threshold)
+
+
+def _row_blocks(s: int, rows: int) -> list[tuple[int, int]]:
+    return [(r0, min(r0 + rows, s)) for r0 in range(0, s, max(rows, 1))]
+
+
+def _shifted_block(phi: Tensor, affinity: Tensor, r0: int, r1: int) -> Tensor:
+    """``[T, r1 - r0, S - r0]`` cosines of rows ``r0:r1`` vs columns ``r0:``, positives - 4."""
+    cos = phi[:, r0:r1] @ phi[:, r0:].transpose(1, 2)
+    return cos.add_(affinity[:, r0:r1, r0:], alpha=-_SHIFT)
+
+
+def _extremes(
+    shifted: list[Tensor], blocks: list[tuple[int, int]], s: int, dtype: torch.dtype
+) -> tuple[Tensor, Tensor]:
+    """``[S, S]`` min and max over scales of the shifted cosines (upper-triangle columns)."""
+    device = shifted[0].device if shifted else None
+    low = torch.zeros(s, s, dtype=dtype, device=device)
+    high = torch.zeros(s, s, dtype=dtype, device=device)
+    for (r0, r1), u in zip(blocks, shifted, strict=True):
+        low[r0:r1, r0:], high[r0:r1, r0:] = u.amin(0), u.amax(0)  # faster than aminmax
+    return low, high
+
+
+def _select(
+    low: Tensor,
+    high: Tensor,
+    affinity: Tensor,
+    draw: Tensor,
+    pos_threshold: float,
+    neg_threshold: float,
+) -> tuple[Tensor, Tensor]:
+    """Pair sets from the per-pair min/max of the shifted cosines (upper triangle valid)."""
+    s = low.shape[0]
+    upper = torch.ones(s, s, dtype=torch.bool, device=low.device).triu(diagonal=1)
+    cons_pos, cons_neg = high < _SPLIT, low > _SPLIT  # every G_t = 1 / every G_t = 0
+    inconsistent = ~(cons_pos | cons_neg) & upper
+    # counts over the full symmetric matrix, as SAGA: twice the upper triangle plus the diagonal
+    diagonal = torch.diagonal(affinity, dim1=1, dim2=2)  # [T, S]
+    n_pos = 2 * (cons_pos & upper).sum() + diagonal.all(0).sum()
+    n_neg = 2 * (cons_neg & upper).sum() + (~diagonal).all(0).sum()
+    half = inconsistent.sum()  # = (full inconsistent count) / 2
+    keep_pos = cons_pos & (draw < half / n_pos.clamp(min=1))
+    keep_neg = cons_neg & (draw < half / n_neg.clamp(min=1))
+    hard_pos = low + _SHIFT < pos_threshold  # min over the positives, if there is one
+    hard_neg = high > max(neg_threshold, _SPLIT + 1e-3)  # max over the negatives, if any
+    pos = (keep_pos | hard_pos | inconsistent) & upper
+    neg = (keep_neg | hard_neg | inconsistent) & upper
+    return pos, neg
+
+
+def _pair_scales(weights: Tensor, pos: Tensor, neg: Tensor, n_scales: int) -> tuple[Tensor, Tensor]:
+    """``w / (T |Pi+|)`` on ``Pi+`` and ``w / (T |Pi-|)`` on ``Pi-`` (0 elsewhere)."""
+    a = weights * pos / max(n_scales * int(pos.sum()), 1)
+    b = weights * neg / max(n_scales * int(neg.sum()), 1)
+    return a, b

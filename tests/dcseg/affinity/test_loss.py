@@ -1,0 +1,131 @@
+import torch
+from torch.autograd import gradcheck
+
+from dcseg.affinity.loss import contrastive_loss, mine_pairs
+
+
+def _inputs(
+    s: int = 6, d: int = 4, t: int = 3, seed: int = 0
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    features = torch.randn(s, d, generator=g, dtype=torch.float64)
+    gates = torch.sigmoid(torch.randn(t, d, generator=g, dtype=torch.float64))
+    group = torch.randint(0, 3, (t, s), generator=g)
+    affinity = group[:, :, None] == group[:, None, :]
+    weights = 1.0 + 9.0 * torch.rand(s, s, generator=g, dtype=torch.float64)
+    weights = (weights + weights.T) / 2
+    draw = torch.rand(s, s, generator=g, dtype=torch.float64)
+    return features, gates, affinity, weights, draw
+
+
+def _reference(
+    features: torch.Tensor,
+    gates: torch.Tensor,
+    affinity: torch.Tensor,
+    weights: torch.Tensor,
+    draw: torch.Tensor,
+    norm_weight: float = 1.0,
+) -> torch.Tensor:
+    """SAGA's formula written out with boolean indexing, as a test oracle."""
+    phi = torch.nn.functional.normalize(features[None] * gates[:, None], dim=-1)
+    cos = torch.einsum("tsd,tqd->tsq", phi, phi)
+    pos, neg = mine_pairs(cos.detach(), affinity, draw)
+    g = affinity.to(cos.dtype)
+    w = weights[None].expand_as(cos)
+    loss = features.new_zeros(())
+    if pos.any():
+        loss = loss - (w[:, pos] * g[:, pos] * cos[:, pos]).mean()
+    if neg.any():
+        loss = loss + (w[:, neg] * (1 - g[:, neg]) * cos[:, neg].clamp(min=0)).mean()
+    out: torch.Tensor = loss + norm_weight * (1 - features.norm(dim=-1).mean()) ** 2
+    return out
+
+
+def test_gradcheck_float64():
+    features, gates, affinity, weights, draw = _inputs()
+    features.requires_grad_(True)
+    gates.requires_grad_(True)
+
+    def fn(f, g):
+        return contrastive_loss(f, g, affinity, weights, draw, block_rows=4)
+
+    assert gradcheck(fn, (features, gates), eps=1e-6, atol=1e-6)
+
+
+def test_matches_reference_formula():
+    for seed in range(5):
+        inputs = _inputs(s=13, d=5, t=4, seed=seed)
+        want = _reference(*inputs, norm_weight=0.5)
+        for block_rows in (5, 128):
+            got = contrastive_loss(*inputs, norm_weight=0.5, block_rows=block_rows)
+            torch.testing.assert_close(got, want)
+
+
+def test_mine_pairs_upper_triangle_and_inconsistent_in_both():
+    _, _, affinity, _, draw = _inputs(s=10, t=3, seed=1)
+    cos = torch.zeros(3, 10, 10, dtype=torch.float64)  # no hard pairs
+    pos, neg = mine_pairs(cos, affinity, draw)
+    upper = torch.ones(10, 10, dtype=torch.bool).triu(1)
+    assert not (pos & ~upper).any() and not (neg & ~upper).any()
+    z = affinity.sum(0)
+    inconsistent = (z > 0) & (z < 3) & upper
+    assert inconsistent.any()
+    assert (pos[inconsistent]).all() and (neg[inconsistent]).all()
+    assert not (pos & (z == 0)).any()  # consistent negatives never positive
+    assert not (neg & (z == 3)).any()
+
+
+def test_mine_pairs_hard_pairs():
+    affinity = torch.zeros(2, 4, 4, dtype=torch.bool)
+    affinity[:, 0, 1] = affinity[:, 1, 0] = True  # consistent positive pair (0, 1)
+    cos = torch.zeros(2, 4, 4)
+    cos[1, 0, 1] = 0.5  # below 0.75 at one scale: hard positive
+    cos[0, 2, 3] = 0.6  # above 0.5 on a negative: hard negative
+    draw = torch.ones(4, 4)  # never keep consistent pairs by chance
+    pos, neg = mine_pairs(cos, affinity, draw)
+    assert pos[0, 1] and not neg[0, 1]
+    assert neg[2, 3] and not pos[2, 3]
+    assert int(pos.sum()) == 1 and int(neg.sum()) == 1
+
+
+def test_empty_pair_sets_give_norm_term_only():
+    features = torch.tensor([[2.0, 0.0], [2.0, 0.0]])
+    gates = torch.ones(1, 2)
+    affinity = torch.ones(1, 2, 2, dtype=torch.bool)
+    loss = contrastive_loss(features, gates, affinity, torch.ones(2, 2), torch.ones(2, 2))
+    torch.testing.assert_close(loss, torch.tensor(1.0))  # (1 - 2)^2, pair terms empty
+
+
+def _reference_mining(
+    cos: torch.Tensor,
+    affinity: torch.Tensor,
+    draw: torch.Tensor,
+    pos_thr: float = 0.75,
+    neg_thr: float = 0.5,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pair mining written as in SAGA (sum of G over scales, any over scales)."""
+    t, s, _ = affinity.shape
+    z = affinity.sum(0)
+    cons_pos, cons_neg = z == t, z == 0
+    inconsistent = ~(cons_pos | cons_neg)
+    half = inconsistent.sum() / 2
+    keep_pos = cons_pos & (draw < half / cons_pos.sum().clamp(min=1))
+    keep_neg = cons_neg & (draw < half / cons_neg.sum().clamp(min=1))
+    hard_pos = (affinity & (cos < pos_thr)).any(0)
+    hard_neg = (~affinity & (cos > neg_thr)).any(0)
+    upper = torch.ones(s, s, dtype=torch.bool).triu(1)
+    return (keep_pos | hard_pos | inconsistent) & upper, (
+        keep_neg | hard_neg | inconsistent
+    ) & upper
+
+
+def test_mine_pairs_matches_reference():
+    for seed in range(10):
+        _, _, affinity, _, draw = _inputs(s=30, t=5, seed=seed)
+        g = torch.Generator().manual_seed(seed)
+        cos = torch.rand(5, 30, 30, generator=g, dtype=torch.float64) * 2 - 1
+        cos = (cos + cos.transpose(1, 2)) / 2
+        for got, want in zip(
+            mine_pairs(cos, affinity, draw), _reference_mining(cos, affinity, draw), strict=True
+        ):
+            assert torch.equal(got, want)

@@ -1,0 +1,157 @@
+"""Per-pixel blending weights of frozen Gaussians in one view (:class:`dcseg.blend.BlendWeights`).
+
+The per-pixel rules are exactly those of the rasterizer's forward pass (alpha clamp, the 1/255
+alpha floor, stopping when transmittance would fall to ``T_MIN``), so
+``blend_weights(g, cam).render(v)`` equals ``render(g, v, cam).values`` up to the truncation
+below. Two truncations bound memory: contributions with weight below ``min_weight`` are not
+stored (their pixel still loses the transmittance), and at most ``max_per_pixel`` are stored
+per pixel (front-most first). Storage is 8 bytes per stored contribution plus 8 per pixel.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Any
+
+import numba
+import numpy as np
+import torch
+from numba import prange
+from numba.core.errors import NumbaPerformanceWarning
+
+from dcseg.blend import BlendWeights
+from dcseg.gaussians import Gaussians
+from dcseg.render.camera import Camera
+from dcseg.render.numba_kernels import bin_tiles
+from dcseg.render.projection import ALPHA_MIN, TILE_SIZE, project, tile_grid
+from dcseg.render.torch_renderer import ALPHA_MAX, T_MIN
+
+Array = Any  # numpy arrays; numba cannot see annotations, mypy cannot see numba
+
+
+def blend_weights(
+    gaussians: Gaussians,
+    camera: Camera,
+    *,
+    min_weight: float = 1e-3,
+    max_per_pixel: int = 64,
+) -> BlendWeights:
+    """The blending weights of every Gaussian in every pixel of ``camera``.
+
+    Args:
+        gaussians: the (frozen) Gaussians; gradients are not tracked.
+        camera: the view.
+        min_weight: contributions below this weight are dropped.
+        max_per_pixel: at most this many contributions are kept per pixel, front-most first.
+
+    Returns:
+        The view's :class:`BlendWeights` on the CPU (ids int32, weights float32).
+    """
+    with torch.no_grad():
+        splats = project(gaussians.detach().to("cpu"), camera)
+    width, height = camera.width, camera.height
+    tiles_x, tiles_y = tile_grid(width, height)
+    args = (
+        _numpy(splats.means2d, np.float32),
+        _numpy(splats.conics, np.float32),
+        _numpy(splats.opacities, np.float32),
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NumbaPerformanceWarning)
+        offsets, order = bin_tiles(
+            _numpy(splats.tile_min, np.int64), _numpy(splats.tile_max, np.int64),
+            tiles_x * tiles_y, tiles_x,
+        )  # fmt: skip
+        limits = (width, height, tiles_x, float(min_weight), int(max_per_pixel))
+        counts = _count(*args, offsets, order, *limits)
+        pixel_offsets = np.zeros(width * height + 1, dtype=np.int64)
+        np.cumsum(counts, out=pixel_offsets[1:])
+        slots, weights = _fill(*args, offsets, order, *limits, pixel_offsets)
+    gaussian_ids = _numpy(splats.index, np.int64)[slots].astype(np.int32)
+    return BlendWeights(
+        height=height,
+        width=width,
+        offsets=torch.from_numpy(pixel_offsets),
+        ids=torch.from_numpy(gaussian_ids),
+        weights=torch.from_numpy(weights),
+    )
+
+
+def _numpy(t: torch.Tensor, dtype: Any) -> np.ndarray[Any, Any]:
+    return np.ascontiguousarray(t.detach().cpu().numpy().astype(dtype, copy=False))
+
+
+@numba.njit(cache=True, nogil=True)
+def _pixel_walk(
+    px: int, py: int, means2d: Array, conics: Array, opacities: Array, order: Array,
+    start: int, end: int, min_weight: float, max_keep: int, slots: Array, weights: Array,
+) -> int:  # fmt: skip
+    """Composite one pixel front to back; store kept (splat, weight) pairs; return the count."""
+    trans = 1.0
+    kept = 0
+    for k in range(start, end):
+        g = order[k]
+        dx = means2d[g, 0] - px
+        dy = means2d[g, 1] - py
+        a, b, c = conics[g, 0], conics[g, 1], conics[g, 2]
+        sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+        alpha = min(ALPHA_MAX, opacities[g] * math.exp(-sigma))
+        if sigma < 0.0 or alpha < ALPHA_MIN:
+            continue
+        next_t = trans * (1.0 - alpha)
+        if next_t <= T_MIN:
+            break
+        weight = alpha * trans
+        if weight >= min_weight:
+            if slots.shape[0] > 0:
+                slots[kept] = g
+                weights[kept] = weight
+            kept += 1
+            if kept == max_keep:
+                break
+        trans = next_t
+    return kept
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _count(
+    means2d: Array, conics: Array, opacities: Array, offsets: Array, order: Array,
+    width: int, height: int, tiles_x: int, min_weight: float, max_keep: int,
+) -> Array:  # fmt: skip
+    """Number of stored contributions per pixel (row-major)."""
+    counts = np.zeros(width * height, dtype=np.int64)
+    none_i = np.empty(0, dtype=np.int64)
+    none_f = np.empty(0, dtype=np.float32)
+    for tile in prange(offsets.shape[0] - 1):
+        x0, y0 = (tile % tiles_x) * TILE_SIZE, (tile // tiles_x) * TILE_SIZE
+        for py in range(y0, min(y0 + TILE_SIZE, height)):
+            for px in range(x0, min(x0 + TILE_SIZE, width)):
+                counts[py * width + px] = _pixel_walk(
+                    px, py, means2d, conics, opacities, order, offsets[tile],
+                    offsets[tile + 1], min_weight, max_keep, none_i, none_f,
+                )  # fmt: skip
+    return counts
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _fill(
+    means2d: Array, conics: Array, opacities: Array, offsets: Array, order: Array,
+    width: int, height: int, tiles_x: int, min_weight: float, max_keep: int,
+    pixel_offsets: Array,
+) -> tuple[Array, Array]:  # fmt: skip
+    """The stored (splat slot, weight) pairs in CSR order."""
+    nnz = pixel_offsets[-1]
+    slots = np.empty(nnz, dtype=np.int64)
+    weights = np.empty(nnz, dtype=np.float32)
+    for tile in prange(offsets.shape[0] - 1):
+        x0, y0 = (tile % tiles_x) * TILE_SIZE, (tile // tiles_x) * TILE_SIZE
+        for py in range(y0, min(y0 + TILE_SIZE, height)):
+            for px in range(x0, min(x0 + TILE_SIZE, width)):
+                p = py * width + px
+                lo, hi = pixel_offsets[p], pixel_offsets[p + 1]
+                _pixel_walk(
+                    px, py, means2d, conics, opacities, order, offsets[tile],
+                    offsets[tile + 1], min_weight, max_keep, slots[lo:hi], weights[lo:hi],
+                )  # fmt: skip
+    return slots, weights

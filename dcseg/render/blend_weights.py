@@ -52,22 +52,25 @@ def blend_weights(
         splats = project(gaussians.detach().to("cpu"), camera)
     width, height = camera.width, camera.height
     tiles_x, tiles_y = tile_grid(width, height)
-    args = (
-        _numpy(splats.means2d, np.float32),
-        _numpy(splats.conics, np.float32),
-        _numpy(splats.opacities, np.float32),
-    )
+    means2d = _numpy(splats.means2d, np.float32)
+    conics = _numpy(splats.conics, np.float32)
+    opacities = _numpy(splats.opacities, np.float32)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NumbaPerformanceWarning)
         offsets, order = bin_tiles(
             _numpy(splats.tile_min, np.int64), _numpy(splats.tile_max, np.int64),
             tiles_x * tiles_y, tiles_x,
         )  # fmt: skip
-        limits = (width, height, tiles_x, float(min_weight), int(max_per_pixel))
-        counts = _count(*args, offsets, order, *limits)
+        counts = _count(
+            means2d, conics, opacities, offsets, order,
+            width, height, tiles_x, float(min_weight), int(max_per_pixel),
+        )  # fmt: skip
         pixel_offsets = np.zeros(width * height + 1, dtype=np.int64)
         np.cumsum(counts, out=pixel_offsets[1:])
-        slots, weights = _fill(*args, offsets, order, *limits, pixel_offsets)
+        slots, weights = _fill(
+            means2d, conics, opacities, offsets, order,
+            width, height, tiles_x, float(min_weight), int(max_per_pixel), pixel_offsets,
+        )  # fmt: skip
     gaussian_ids = _numpy(splats.index, np.int64)[slots].astype(np.int32)
     return BlendWeights(
         height=height,

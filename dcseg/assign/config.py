@@ -20,9 +20,9 @@ class AssignConfig:
             that view with at least ``min_area`` pixels (1 for a class that is present only in
             smaller pieces).
         min_iou: edges with IoU below this are invalid: never matched, never voted (paper 0.05).
-        min_area: 2D connected-component filter: cluster-mask components (8-connectivity)
-            smaller than this many pixels are removed before computing IoU (paper: 1000 px at
-            1200x680; scale it with the image area). 0 disables the filter.
+        min_area: smallest class-mask component (pixels) counted by ``replicas="components"``.
+            The same-named 2D filter of cluster masks (paper: 1000 px at 1200x680) is applied
+            before this stage, when cluster maps are made.
     """
 
     mode: AssignMode = "assignment"

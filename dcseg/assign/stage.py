@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.assign.config import AssignConfig
-from dcseg.assign.masks import clean_cluster_map, component_counts, mask_iou
+from dcseg.assign.masks import component_counts, mask_iou
 from dcseg.assign.matching import Match, match_view
 from dcseg.assign.vote import decide, tally
 
@@ -44,10 +44,11 @@ def view_matches(
     n_classes: int,
     cfg: AssignConfig,
 ) -> list[Match]:
-    """Clean one view's cluster map, compute IoU with its class map, and match.
+    """Compute one view's IoU between cluster and class masks, and match.
 
     Args:
-        cluster_ids: ``[H, W]`` int cluster id per pixel, -1 = none.
+        cluster_ids: ``[H, W]`` int cluster id per pixel, -1 = none, already cleaned with the
+            2D connected-component filter (:func:`~dcseg.assign.masks.clean_cluster_map`).
         class_map: ``[H, W]`` int class index per pixel, -1 = none.
         n_clusters: K.
         n_classes: C.
@@ -56,8 +57,7 @@ def view_matches(
     Returns:
         The view's ``(cluster, class, iou)`` matches.
     """
-    cleaned = clean_cluster_map(cluster_ids, cfg.min_area)
-    iou = mask_iou(cleaned, class_map, n_clusters, n_classes)
+    iou = mask_iou(cluster_ids, class_map, n_clusters, n_classes)
     counts = None
     if cfg.mode == "assignment" and cfg.replicas == "components":
         counts = component_counts(class_map, n_classes, cfg.min_area)
@@ -88,14 +88,14 @@ def assign_labels(
 ) -> Assignment:
     """Label clusters with classes by per-view matching and IoU-weighted voting (§6, B.7).
 
-    Per view: clean the cluster map (2D connected-component filter), compute the ``[K, C]``
-    IoU with the class map, match (:func:`~dcseg.assign.matching.match_view`); then sum the
+    Per view: compute the ``[K, C]`` IoU of the (cleaned) cluster map with the class map, match (:func:`~dcseg.assign.matching.match_view`); then sum the
     matched IoUs per (cluster, class) over views and take the best class per cluster. Views
     are processed one at a time: memory is O(H x W + K x C).
 
     Args:
-        cluster_maps: per view, ``[H, W]`` int cluster id per pixel (-1 = none), e.g. the
-            argmax of rendered cluster weights above the mask threshold.
+        cluster_maps: per view, ``[H, W]`` int cluster id per pixel (-1 = none): the argmax of
+            rendered cluster weights above the mask threshold, cleaned with
+            :func:`~dcseg.assign.masks.clean_cluster_map` (``cfg.min_area``).
         class_maps: per view, ``[H, W]`` int class index (-1 = none), e.g.
             ``SemanticMap.classes``; same sizes as the cluster maps.
         n_clusters: K.

@@ -155,6 +155,7 @@ def test_assign_labels_over_views_with_cleaning() -> None:
     stray = ids.copy()
     stray[0, 0] = 1  # a 1-px piece of cluster 1 inside cluster 0's block (removed by cleaning)
     cfg = AssignConfig(min_area=2)
+    stray = clean_cluster_map(stray, cfg.min_area)
     pieces = view_matches(stray, classes, 3, 2, cfg)
     assert (1, 1, 1.0) in pieces
     result = assign_labels([ids, stray, ids], [classes, classes, flipped], 4, 2, cfg)

@@ -1,0 +1,103 @@
+"""The ``cpu`` backend: numba kernels wrapped in a ``torch.autograd.Function``.
+
+Projection stays in PyTorch (autograd differentiates it); the Function maps
+(means2d [M, 2], conics [M, 3], opacities [M], values [M, C]) to an ``[H, W, C]`` image. The
+forward saves only its inputs, the tile lists, the final transmittance ``[H, W]`` and the
+per-pixel count of tile-list entries up to the last contributor ``[H, W]``; the backward
+recomputes alphas back to front (as 3DGS does). Peak extra memory is O(H W + n_isect (6 + C)).
+
+Deployment note: torch and numba each run an OpenMP pool; with the default (spinning) wait policy
+the two pools, and any other load, fight over the cores and the torch part can slow down 5-20x on
+a 2-core machine. Set ``OMP_WAIT_POLICY=PASSIVE`` in the worker's environment (before the
+process starts). The first call compiles the kernels (~10-20 s per dtype); ``cache=True`` stores
+them next to this package (or in ``NUMBA_CACHE_DIR``) for later processes.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+import numpy as np
+import torch
+from numba.core.errors import NumbaPerformanceWarning
+from torch import Tensor
+
+from dcseg.render import numba_kernels as nk
+from dcseg.render.projection import Splats, tile_grid
+
+
+class RasterizeSplats(torch.autograd.Function):
+    """Differentiable compositing of depth-sorted splats with the numba kernels."""
+
+    @staticmethod
+    def forward(
+        ctx: Any,
+        means2d: Tensor,
+        conics: Tensor,
+        opacities: Tensor,
+        values: Tensor,
+        offsets: Tensor,
+        ids: Tensor,
+        size: tuple[int, int],
+    ) -> Tensor:
+        """Composite ``values [M, C]`` into an ``[H, W, C]`` image; ``size`` is (W, H)."""
+        width, height = size
+        m, k, o, v, off, idx = (
+            _numpy(t) for t in (means2d, conics, opacities, values, offsets, ids)
+        )
+        with _quiet():
+            tiles_x = tile_grid(width, height)[0]
+            image, t_final, n_contrib = nk.forward(m, k, o, v, off, idx, width, height, tiles_x)
+        ctx.size = size
+        ctx.save_for_backward(
+            means2d, conics, opacities, values, offsets, ids,
+            torch.from_numpy(t_final), torch.from_numpy(n_contrib),
+        )  # fmt: skip
+        return torch.from_numpy(image)
+
+    @staticmethod
+    def backward(ctx: Any, grad_image: Tensor) -> tuple[Tensor | None, ...]:
+        """Gradients for means2d, conics, opacities and values (None for the rest)."""
+        means2d, conics, opacities, values, offsets, ids, t_final, n_contrib = ctx.saved_tensors
+        tiles_x = tile_grid(*ctx.size)[0]
+        m, k, o, v, off, idx = (
+            _numpy(t) for t in (means2d, conics, opacities, values, offsets, ids)
+        )
+        grad = _numpy(grad_image.to(values.dtype))
+        with _quiet():
+            per_isect = nk.backward(
+                m, k, o, v, off, idx, _numpy(t_final), _numpy(n_contrib), grad, tiles_x
+            )
+        sums = torch.zeros(values.shape[0], per_isect.shape[1], dtype=values.dtype)
+        sums.index_add_(0, ids.long(), torch.from_numpy(per_isect))
+        return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 6:], None, None, None
+
+
+def rasterize_cpu(splats: Splats, values: Tensor, width: int, height: int) -> Tensor:
+    """Composite ``values [M, C]`` of depth-sorted splats into an ``[H, W, C]`` image.
+
+    Same contract as :func:`dcseg.render.torch_renderer.rasterize_reference`.
+    """
+    tiles_x, tiles_y = tile_grid(width, height)
+    with _quiet():
+        offsets, ids = nk.bin_tiles(
+            _numpy(splats.tile_min), _numpy(splats.tile_max), tiles_x * tiles_y, tiles_x
+        )
+    out: Tensor = RasterizeSplats.apply(  # type: ignore[no-untyped-call]
+        splats.means2d, splats.conics, splats.opacities, values,
+        torch.from_numpy(offsets), torch.from_numpy(ids), (width, height),
+    )  # fmt: skip
+    return out
+
+
+def _numpy(t: Tensor) -> np.ndarray[Any, Any]:
+    return np.ascontiguousarray(t.detach().cpu().numpy())
+
+
+class _quiet(warnings.catch_warnings):
+    """Silence numba's performance hints (they are advice, not errors) around kernel calls."""
+
+    def __enter__(self) -> None:
+        super().__enter__()
+        warnings.simplefilter("ignore", NumbaPerformanceWarning)

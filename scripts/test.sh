@@ -5,6 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 . .venv/bin/activate
+export OMP_WAIT_POLICY=PASSIVE  # torch and numba thread pools must not spin against each other
 
 echo "== ruff"; ruff check . && ruff format --check .
 echo "== mypy"; mypy dcseg tests benchmarks

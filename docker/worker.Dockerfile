@@ -1,0 +1,49 @@
+# dcseg GPU worker: CUDA, torch (CUDA build) and gsplat through the `cuda` extra.
+# Build from the repository root:
+#   docker build -f docker/worker.Dockerfile -t dcseg-worker .
+# Match TORCH_INDEX to the CUDA of the base image; gsplat compiles its kernels against it
+# (hence the -devel image with nvcc), for TORCH_CUDA_ARCH_LIST.
+ARG CUDA_IMAGE=nvidia/cuda:12.4.1-cudnn-devel-ubuntu22.04
+FROM ${CUDA_IMAGE}
+
+ARG TORCH_INDEX=https://download.pytorch.org/whl/cu124
+ARG TORCH_SPEC=torch
+ARG TORCH_CUDA_ARCH_LIST="7.5;8.0;8.6;8.9;9.0"
+
+ENV DEBIAN_FRONTEND=noninteractive \
+    PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST} \
+    DCSEG_STORAGE_DIR=/data \
+    DCSEG_DEVICE=cuda
+
+# Python 3.11 from deadsnakes (Ubuntu 22.04 ships 3.10).
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends software-properties-common gpg-agent \
+    && add-apt-repository -y ppa:deadsnakes/ppa \
+    && apt-get update \
+    && apt-get install -y --no-install-recommends \
+        python3.11 python3.11-venv python3.11-dev build-essential git libgl1 libglib2.0-0 \
+    && rm -rf /var/lib/apt/lists/*
+
+RUN python3.11 -m venv /opt/venv
+ENV PATH=/opt/venv/bin:$PATH
+
+WORKDIR /app
+# torch from the CUDA index first, so `.[cuda]` does not pull another build.
+RUN pip install --upgrade pip && pip install --index-url ${TORCH_INDEX} "${TORCH_SPEC}"
+
+COPY pyproject.toml README.md ./
+COPY dcseg ./dcseg
+COPY service ./service
+COPY worker ./worker
+RUN pip install ".[cuda]" "psycopg[binary]>=3.1"
+
+RUN groupadd --system dcseg && useradd --system --gid dcseg --home-dir /app dcseg \
+    && mkdir -p /data && chown dcseg:dcseg /data
+USER dcseg
+VOLUME ["/data"]
+# One worker process per GPU; CUDA initialises in the task, never in the parent.
+CMD ["dcseg", "worker", "--queues", "gpu", "--concurrency", "1"]

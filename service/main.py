@@ -1,0 +1,156 @@
+"""The FastAPI application: ``create_app(settings)``; ``app`` is the default instance.
+
+Nothing touches the database or the disk at import time: the lifespan opens the store, checks
+the schema, loads API keys, sweeps unfinished jobs and (embedded mode) starts a local worker.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import shutil
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from datetime import timedelta
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from fastapi import FastAPI
+from fastapi.concurrency import run_in_threadpool
+
+from dcseg import __version__
+from service import problems
+from service.deps import LOCAL_TENANT, AppState, RateLimiter
+from service.queue import JobQueue, make_queue
+from service.routes import artifacts, events, health, jobs, uploads
+from service.settings import Settings, get_settings
+from service.store import Store
+
+if TYPE_CHECKING:
+    from worker.local import EmbeddedWorker
+
+logger = logging.getLogger(__name__)
+
+DESCRIPTION = """\
+Segment posed RGB-D captures into labelled 3D Gaussians.
+
+Upload a capture archive (`POST /v1/uploads`), submit a job (`POST /v1/jobs`), poll it
+(`GET /v1/jobs/{id}`) or stream its events, then download its artifacts. Errors are RFC 9457
+`application/problem+json`. Authenticate with `Authorization: Bearer <api key>`.
+"""
+
+
+def sweep(store: Store, queue: JobQueue, settings: Settings) -> None:
+    """Pick up jobs a previous run left unfinished.
+
+    Embedded mode owns every job: running ones go back to ``queued`` and the local worker
+    resumes them after their last finished stage. With a broker, queued jobs and running jobs
+    whose worker stopped heartbeating are sent again (a duplicate delivery is harmless: only
+    one worker can claim a job).
+    """
+    if settings.broker_url is None:
+        requeued = store.requeue_running()
+        if requeued:
+            logger.info("requeued %d unfinished job(s): %s", len(requeued), requeued)
+        return
+    for job_id in store.unfinished(timedelta(seconds=3 * settings.heartbeat_s)):
+        try:
+            queue.enqueue(job_id)
+        except Exception:
+            logger.exception("could not re-enqueue job %s", job_id)
+
+
+async def recover_lost_jobs(
+    store: Store, queue: JobQueue, settings: Settings, local: EmbeddedWorker | None
+) -> None:
+    """Forever: requeue running jobs whose worker died (stale heartbeat) and enqueue them;
+    restart the embedded worker if it died."""
+    stale = timedelta(seconds=3 * settings.heartbeat_s)
+    while True:
+        await asyncio.sleep(settings.sweep_interval_s)
+        if local is not None:
+            local.ensure_running()
+        try:
+            for job_id in await run_in_threadpool(store.requeue_stale, stale):
+                logger.warning("job %s lost its worker; requeued", job_id)
+                await run_in_threadpool(queue.enqueue, job_id)
+        except Exception:
+            logger.exception("recovery sweep failed; retrying")
+
+
+ABANDONED_UPLOAD_S = 24 * 3600.0
+"""Temporary upload folders older than this were left by a crashed request; removed at start."""
+
+
+def remove_abandoned_uploads(storage: Path) -> None:
+    """Delete ``uploads/.tmp-*`` folders old enough to belong to no live request (other API
+    replicas may share the storage, so recent ones are left alone)."""
+    cutoff = time.time() - ABANDONED_UPLOAD_S
+    for folder in (storage / "uploads").glob(".tmp-*"):
+        if folder.stat().st_mtime < cutoff:
+            logger.info("removing abandoned upload %s", folder.name)
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def open_state(settings: Settings) -> AppState:
+    """Open the store (creating or checking the schema), load keys, build the queue."""
+    settings.storage_dir.mkdir(parents=True, exist_ok=True)
+    remove_abandoned_uploads(settings.storage_dir)
+    store = Store(settings.db_url)
+    store.init_schema()
+    keys = settings.parsed_api_keys()
+    key_hashes = store.sync_api_keys(keys)
+    if not keys:
+        store.ensure_tenant(LOCAL_TENANT)
+        logger.warning("no API keys configured: authentication is off (tenant %r)", LOCAL_TENANT)
+    queue = make_queue(settings)
+    return AppState(
+        settings=settings,
+        store=store,
+        queue=queue,
+        key_hashes=key_hashes,
+        limiter=RateLimiter(settings.rate_limit_per_minute),
+    )
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """A new app; ``settings`` defaults to the environment's (:func:`get_settings`)."""
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        current = settings or get_settings()
+        state = open_state(current)
+        app.state.dcseg = state
+        sweep(state.store, state.queue, current)
+        local = None
+        if current.broker_url is None and current.embedded_worker != "off":
+            from worker.local import EmbeddedWorker
+
+            local = EmbeddedWorker(current, mode=current.embedded_worker)
+            local.start()
+        recovery = asyncio.create_task(recover_lost_jobs(state.store, state.queue, current, local))
+        try:
+            yield
+        finally:
+            recovery.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await recovery
+            if local is not None:
+                local.stop()
+            state.store.close()
+
+    app = FastAPI(
+        title="dcseg",
+        version=__version__,
+        description=DESCRIPTION,
+        lifespan=lifespan,
+    )
+    problems.install(app)
+    for module in (uploads, jobs, events, artifacts, health):
+        app.include_router(module.router)
+    return app
+
+
+app = create_app()

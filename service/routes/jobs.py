@@ -1,0 +1,238 @@
+"""``/v1/jobs``: create (202, idempotent), read (ETag), list (paged), cancel and delete."""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Header, Query, Response
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
+
+from service.deps import AppState, StateDep, TenantDep
+from service.jobs import (
+    decode_page_token,
+    encode_page_token,
+    etag_matches,
+    etag_of,
+    job_public,
+    job_url,
+    request_hash,
+)
+from service.models import Job
+from service.problems import ApiProblem, problem_responses
+from service.schemas import JobCreate, JobPublic, JobsPublic, JobStatus
+from service.store import Conflict, Cursor, new_id
+from worker.contract import TERMINAL, JobPaths
+
+logger = logging.getLogger(__name__)
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+IdempotencyKey = Annotated[
+    str | None,
+    Header(
+        alias="Idempotency-Key",
+        max_length=255,
+        description="Same key + same body replays the first response (per tenant).",
+    ),
+]
+
+
+def _not_found(job_id: str) -> ApiProblem:
+    return ApiProblem(404, f"no job {job_id!r}", slug="not-found", job_id=job_id)
+
+
+def _job_response(state: AppState, job: Job, status_code: int = 200) -> JSONResponse:
+    body = job_public(job).model_dump(mode="json")
+    headers = {"ETag": etag_of(body)}
+    if job.status not in TERMINAL:
+        headers["Retry-After"] = str(state.settings.retry_after_s)
+    return JSONResponse(body, status_code=status_code, headers=headers)
+
+
+def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
+    """Check the inputs and the tenant's cap, then insert the queued job."""
+    upload_id = body.upload_id
+    if body.parent_job_id is not None:
+        parent = state.store.get_job(body.parent_job_id, tenant)
+        if parent is None:
+            raise _not_found(body.parent_job_id)
+        if parent.status != "succeeded":
+            raise ApiProblem(
+                409, f"parent job is {parent.status}, not succeeded", slug="parent-unfinished"
+            )
+        upload_id = upload_id or parent.upload_id
+    assert upload_id is not None
+    if state.store.get_upload(upload_id, tenant) is None:
+        raise ApiProblem(404, f"no upload {upload_id!r}", slug="not-found")
+    active = state.store.count_active(tenant)
+    if active >= state.settings.max_running_jobs_per_tenant:
+        raise ApiProblem(
+            429,
+            f"{active} unfinished jobs; the limit is {state.settings.max_running_jobs_per_tenant}",
+            slug="too-many-jobs",
+            headers={"Retry-After": "30"},
+        )
+    config = {"preset": body.preset, "options": body.options.model_dump(mode="json")}
+    job = Job(
+        id=new_id(),
+        tenant_id=tenant,
+        upload_id=upload_id,
+        parent_job_id=body.parent_job_id,
+        status="queued",
+        config=config,
+        event_seq=0,
+        message="queued",
+    )
+    return state.store.create_job(job)
+
+
+def _submit(state: AppState, tenant: str, body: JobCreate) -> JSONResponse:
+    job = _new_job(state, tenant, body)
+    try:
+        state.queue.enqueue(job.id)
+    except Exception as error:
+        logger.exception("could not enqueue job %s", job.id)
+        state.store.finish_job(job.id, "failed", {"detail": f"queue unavailable: {error}"})
+        raise ApiProblem(
+            503, "the job queue is unavailable; try again later", slug="queue-down"
+        ) from error
+    response = _job_response(state, job, 202)
+    response.headers["Location"] = job_url(job.id)
+    response.headers["Operation-Location"] = job_url(job.id)
+    return response
+
+
+def _replay(status_code: int, stored: dict[str, Any]) -> JSONResponse:
+    headers = {**stored["headers"], "Idempotent-Replayed": "true"}
+    return JSONResponse(stored["body"], status_code=status_code, headers=headers)
+
+
+@router.post(
+    "",
+    status_code=202,
+    response_model=JobPublic,
+    responses=problem_responses(400, 401, 404, 409, 422, 429, 503),
+)
+def create_job(
+    body: JobCreate, state: StateDep, tenant: TenantDep, idempotency_key: IdempotencyKey = None
+) -> Response:
+    """Queue a pipeline run; poll the job at ``Location`` (or stream its events)."""
+    if idempotency_key is None:
+        return _submit(state, tenant, body)
+    digest = request_hash(body.model_dump(mode="json"))
+    outcome = state.store.idempotency_begin(tenant, idempotency_key, digest)
+    if outcome.kind == "mismatch":
+        raise ApiProblem(
+            422, "Idempotency-Key was used with a different body", slug="idempotency-mismatch"
+        )
+    if outcome.kind == "in_flight":
+        raise ApiProblem(
+            409, "a request with this Idempotency-Key is in progress", slug="idempotency-in-flight"
+        )
+    if outcome.kind == "replay":
+        assert outcome.status_code is not None and outcome.response is not None
+        return _replay(outcome.status_code, outcome.response)
+    try:
+        response = _submit(state, tenant, body)
+    except BaseException:
+        state.store.idempotency_release(tenant, idempotency_key)
+        raise
+    stored = {"body": _json_body(response), "headers": _replay_headers(response)}
+    state.store.idempotency_finish(tenant, idempotency_key, response.status_code, stored)
+    return response
+
+
+def _json_body(response: JSONResponse) -> Any:
+    import json
+
+    return json.loads(bytes(response.body))
+
+
+def _replay_headers(response: Response) -> dict[str, str]:
+    keep = ("location", "operation-location", "etag")
+    return {k: v for k, v in response.headers.items() if k in keep}
+
+
+@router.get("", response_model=JobsPublic, responses=problem_responses(400, 401, 422))
+def list_jobs(
+    state: StateDep,
+    tenant: TenantDep,
+    page_size: Annotated[int, Query(ge=1, le=100)] = 20,
+    page_token: Annotated[str | None, Query(max_length=500)] = None,
+    status: JobStatus | None = None,
+) -> JobsPublic:
+    """The tenant's jobs, newest first; follow ``next_page_token`` until it is absent."""
+    after = decode_page_token(page_token, status) if page_token else None
+    jobs, more = state.store.list_jobs(tenant, status=status, after=after, limit=page_size)
+    token = None
+    if more and jobs:
+        token = encode_page_token(Cursor(jobs[-1].created_at, jobs[-1].id), status)
+    return JobsPublic(jobs=[job_public(j) for j in jobs], next_page_token=token)
+
+
+@router.get(
+    "/{job_id}",
+    response_model=JobPublic,
+    responses={304: {"description": "Not Modified"}, **problem_responses(401, 404)},
+)
+def get_job(
+    job_id: str,
+    state: StateDep,
+    tenant: TenantDep,
+    if_none_match: Annotated[str | None, Header()] = None,
+) -> Response:
+    """A job's status, stage, progress, timings, error and links; ``Retry-After`` until done."""
+    job = state.store.get_job(job_id, tenant)
+    if job is None:
+        raise _not_found(job_id)
+    response = _job_response(state, job)
+    if etag_matches(if_none_match, response.headers["etag"]):
+        return Response(status_code=304, headers={"ETag": response.headers["etag"]})
+    return response
+
+
+def _cancel(job_id: str, state: AppState, tenant: str) -> Response:
+    try:
+        job = state.store.request_cancel(job_id, tenant)
+    except Conflict as conflict:
+        raise ApiProblem(409, conflict.detail, slug="job-finished", job_id=job_id) from None
+    if job is None:
+        raise _not_found(job_id)
+    return _job_response(state, job)
+
+
+@router.post(
+    "/{job_id}:cancel", response_model=JobPublic, responses=problem_responses(401, 404, 409)
+)
+def cancel_job(job_id: str, state: StateDep, tenant: TenantDep) -> Response:
+    """Cancel: a queued job ends ``canceled`` at once, a running one passes through
+    ``canceling`` until its worker stops between iterations. 409 when already finished."""
+    return _cancel(job_id, state, tenant)
+
+
+@router.post(
+    "/{job_id}/cancel",
+    response_model=JobPublic,
+    responses=problem_responses(401, 404, 409),
+    include_in_schema=False,
+)
+def cancel_job_alias(job_id: str, state: StateDep, tenant: TenantDep) -> Response:
+    return _cancel(job_id, state, tenant)
+
+
+@router.delete("/{job_id}", status_code=204, responses=problem_responses(401, 404, 409))
+async def delete_job(job_id: str, state: StateDep, tenant: TenantDep) -> Response:
+    """Delete a finished job and its artifacts. An unfinished job answers 409: cancel it first
+    and delete it once it is ``canceled``."""
+    try:
+        job = await run_in_threadpool(state.store.delete_job, job_id, tenant)
+    except Conflict as conflict:
+        raise ApiProblem(409, conflict.detail, slug="job-unfinished", job_id=job_id) from None
+    if job is None:
+        raise _not_found(job_id)
+    folder = JobPaths(state.settings.storage_dir, job_id).folder
+    await run_in_threadpool(shutil.rmtree, folder, True)
+    return Response(status_code=204)

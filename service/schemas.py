@@ -1,0 +1,146 @@
+"""Request and response bodies of the HTTP API (pydantic); the OpenAPI schema comes from here."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, PositiveInt, model_validator
+
+JobStatus = Literal["queued", "running", "succeeded", "failed", "canceling", "canceled"]
+"""Job statuses; clients must tolerate values added later."""
+
+
+class CaptureOptionsIn(BaseModel):
+    """How the capture is read: the fields of ``dcseg.config.CaptureOptions``, which the worker
+    builds from them (not imported here, so the API never depends on dcseg's stage configs)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    stride: int = Field(default=1, ge=1, description="keep every stride-th frame")
+    max_frames: int | None = Field(default=None, ge=1, description="keep at most this many")
+    size: tuple[PositiveInt, PositiveInt] | None = Field(
+        default=None, description="downscale frames to (width, height)"
+    )
+    depth_trunc: float | None = Field(default=None, gt=0, description="ignore depth beyond (m)")
+    intrinsics: tuple[float, float, float, float] | None = Field(
+        default=None, description="(fx, fy, cx, cy) for layouts that store none"
+    )
+
+
+class JobOptions(BaseModel):
+    """Method parameters of one job (stored with it as ``config``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    capture: CaptureOptionsIn = Field(default_factory=CaptureOptionsIn)
+    """How the capture is read (frame stride, size, depth truncation, intrinsics)."""
+
+    reconstruct: dict[str, Any] = Field(default_factory=dict)
+    """Overrides of the reconstruction preset (fields of ``ReconstructConfig``, e.g.
+    ``{"iterations": 500}``); unknown fields fail the job with a message naming them."""
+
+
+class JobCreate(BaseModel):
+    """``POST /v1/jobs``: run the pipeline on an upload, or derive a job from a finished one."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "anyOf": [
+                {"required": [name], "properties": {name: {"type": "string"}}}
+                for name in ("upload_id", "parent_job_id")
+            ]
+        },
+    )
+
+    upload_id: str | None = Field(default=None, max_length=64)
+    """The upload holding the capture and masks (``POST /v1/uploads``)."""
+
+    parent_job_id: str | None = Field(default=None, max_length=64)
+    """A succeeded job whose finished stages are reused when their parameters are unchanged;
+    its upload is used when ``upload_id`` is omitted."""
+
+    preset: str = Field(default="fast", pattern=r"^[a-z][a-z0-9_-]{0,31}$")
+    """Named parameter set (``fast``, ``paper``); ``options`` override single fields."""
+
+    options: JobOptions = Field(default_factory=JobOptions)
+
+    @model_validator(mode="after")
+    def _has_input(self) -> JobCreate:
+        if self.upload_id is None and self.parent_job_id is None:
+            raise ValueError("give upload_id or parent_job_id")
+        return self
+
+
+class Progress(BaseModel):
+    stage: str | None
+    stage_index: int
+    """0-based index of the current stage."""
+    stage_count: int
+    fraction: float
+    """Overall fraction done, 0 to 1."""
+    message: str | None
+
+
+class JobLinks(BaseModel):
+    self: str
+    cancel: str
+    events: str
+    artifacts: str
+
+
+class JobPublic(BaseModel):
+    id: str
+    status: str
+    """One of queued, running, succeeded, failed, canceling, canceled (more may be added)."""
+    stage: str | None
+    progress: Progress
+    error: dict[str, Any] | None
+    config: dict[str, Any]
+    upload_id: str
+    parent_job_id: str | None
+    created_at: datetime
+    started_at: datetime | None
+    updated_at: datetime
+    completed_at: datetime | None
+    links: JobLinks
+
+
+class JobsPublic(BaseModel):
+    jobs: list[JobPublic]
+    next_page_token: str | None = None
+    """Absent on the last page."""
+
+
+class UploadLinks(BaseModel):
+    self: str
+
+
+class UploadPublic(BaseModel):
+    id: str
+    sha256: str
+    size: int
+    content_type: str
+    summary: dict[str, Any]
+    """What ``dcseg validate`` reports: frames, resolution, depth range, masks, classes."""
+    created_at: datetime
+    links: UploadLinks
+
+
+class ArtifactPublic(BaseModel):
+    name: str
+    """Path relative to the job's output folder, e.g. ``reconstruct/scene.ply``."""
+    media_type: str
+    size: int
+    sha256: str
+    url: str
+
+
+class ArtifactsPublic(BaseModel):
+    artifacts: list[ArtifactPublic]
+
+
+class Health(BaseModel):
+    status: str
+    checks: dict[str, str] = Field(default_factory=dict)

@@ -1,0 +1,134 @@
+"""Fixtures of the service tests: a tiny synthetic capture, archives of it, and a test client
+on a fresh SQLite store with two tenants and no worker (jobs are driven by the tests)."""
+
+from __future__ import annotations
+
+import io
+import shutil
+import tarfile
+import time
+import warnings
+import zipfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, Literal, cast
+
+import pytest
+
+from service.deps import AppState
+from service.main import create_app
+from service.settings import Settings
+
+with warnings.catch_warnings():
+    # starlette deprecates driving TestClient with httpx in favour of httpx2; same behaviour.
+    warnings.filterwarnings("ignore", message=".*httpx2.*")
+    from fastapi.testclient import TestClient as TestClient
+
+KEY_A = "key-a-0123456789"
+KEY_B = "key-b-0123456789"
+AUTH_A = {"Authorization": f"Bearer {KEY_A}"}
+AUTH_B = {"Authorization": f"Bearer {KEY_B}"}
+TAR = {"Content-Type": "application/x-tar"}
+
+
+@pytest.fixture(scope="session")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 4-frame 64x48 synthetic capture with masks, vocabulary and ground truth."""
+    from dcseg.cli import main
+
+    out = tmp_path_factory.mktemp("synth") / "scene"
+    assert main(["synth", str(out), "--frames", "4", "--size", "64x48"]) == 0
+    return out
+
+
+@pytest.fixture
+def scene_copy(scene: Path, tmp_path: Path) -> Path:
+    """A copy of the scene the test may damage."""
+    return Path(shutil.copytree(scene, tmp_path / "scene"))
+
+
+def tar_bytes(
+    folder: Path,
+    mode: Literal["w", "w:gz"] = "w",
+    extra: Callable[[tarfile.TarFile], None] | None = None,
+) -> bytes:
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode=mode) as tf:
+        for path in sorted(folder.rglob("*")):
+            tf.add(path, arcname=path.relative_to(folder).as_posix(), recursive=False)
+        if extra is not None:
+            extra(tf)
+    return buffer.getvalue()
+
+
+def zip_bytes(folder: Path, top: str = "") -> bytes:
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf:
+        for path in sorted(folder.rglob("*")):
+            if path.is_file():
+                zf.write(path, top + path.relative_to(folder).as_posix())
+    return buffer.getvalue()
+
+
+@pytest.fixture(scope="session")
+def scene_tar(scene: Path) -> bytes:
+    return tar_bytes(scene)
+
+
+def make_settings(root: Path, **overrides: Any) -> Settings:
+    values: dict[str, Any] = {
+        "storage_dir": root / "data",
+        "database_url": None,
+        "broker_url": None,
+        "api_keys": f"tenant-a:{KEY_A},tenant-b:{KEY_B}",
+        "embedded_worker": "off",
+        "poll_interval_s": 0.05,
+        "heartbeat_s": 0.2,
+        "max_upload_bytes": 4 * 2**20,
+    }
+    values.update(overrides)
+    return Settings(**values)
+
+
+@pytest.fixture
+def settings(tmp_path: Path) -> Settings:
+    return make_settings(tmp_path)
+
+
+@pytest.fixture
+def client(settings: Settings) -> Iterator[TestClient]:
+    with TestClient(create_app(settings)) as test_client:
+        yield test_client
+
+
+@pytest.fixture
+def upload_id(client: TestClient, scene_tar: bytes) -> str:
+    response = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR})
+    assert response.status_code == 201, response.text
+    upload: str = response.json()["id"]
+    return upload
+
+
+def assert_problem(response: Any, status: int) -> dict[str, Any]:
+    """The response is an RFC 9457 problem with ``status``; returns its body."""
+    assert response.status_code == status, response.text
+    assert response.headers["content-type"].startswith("application/problem+json")
+    body: dict[str, Any] = response.json()
+    assert body["status"] == status
+    assert {"type", "title", "detail", "instance"} <= set(body)
+    return body
+
+
+def wait_for(predicate: Callable[[], Any], timeout: float = 60.0, every: float = 0.05) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(every)
+    raise AssertionError(f"condition not met within {timeout} s")
+
+
+def state_of(client: Any) -> AppState:
+    """The running app's state (store, queue, settings) behind a TestClient."""
+    return cast(AppState, client.app.state.dcseg)

@@ -1,0 +1,47 @@
+"""The ``serve`` and ``worker`` verbs refuse unsafe or impossible set-ups before starting."""
+
+from __future__ import annotations
+
+import pytest
+
+from dcseg.cli import main
+from dcseg.cli.serve import is_loopback
+from service.settings import Settings, get_settings
+
+
+@pytest.fixture(autouse=True)
+def fresh_settings(monkeypatch: pytest.MonkeyPatch, tmp_path):
+    for name in ("DCSEG_API_KEYS", "DCSEG_BROKER_URL", "DCSEG_DATABASE_URL"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("DCSEG_STORAGE_DIR", str(tmp_path))
+    get_settings.cache_clear()
+    yield
+    get_settings.cache_clear()
+
+
+def test_serve_refuses_public_address_without_keys(capsys):
+    assert main(["serve", "--host", "0.0.0.0"]) == 2
+    assert "API keys" in capsys.readouterr().err
+
+
+def test_worker_needs_a_broker(capsys):
+    assert main(["worker"]) == 2
+    assert "DCSEG_BROKER_URL" in capsys.readouterr().err
+
+
+def test_loopback_detection():
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("example.org")
+
+
+def test_settings_from_environment(monkeypatch, tmp_path):
+    keys = tmp_path / "keys.txt"
+    keys.write_text("# tenants\ntenant-a:alpha\ntenant-b:beta\n")
+    monkeypatch.setenv("DCSEG_API_KEYS", f"@{keys}")
+    monkeypatch.setenv("DCSEG_STAGE_TIME_LIMIT_S", '{"reconstruct": 60}')
+    settings = Settings()
+    assert settings.parsed_api_keys() == {"alpha": "tenant-a", "beta": "tenant-b"}
+    assert settings.stage_time_limit_s == {"reconstruct": 60.0}
+    assert settings.db_url == f"sqlite:///{tmp_path.resolve() / 'dcseg.db'}"
+    with pytest.raises(ValueError, match="tenant:key"):
+        Settings(api_keys="no-colon").parsed_api_keys()

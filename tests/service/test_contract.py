@@ -1,0 +1,74 @@
+"""Contracts: the committed OpenAPI document, torch-free imports, problem+json everywhere."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from service.main import app
+from service.openapi import DEFAULT_PATH, render
+from tests.service.conftest import AUTH_A, assert_problem, state_of
+
+
+def test_openapi_document_is_up_to_date():
+    committed = DEFAULT_PATH.read_text(encoding="utf-8")
+    assert committed == render(app.openapi()), "run: python -m service.openapi"
+    spec = json.loads(committed)
+    assert "/v1/jobs/{job_id}:cancel" in spec["paths"]
+    assert "application/x-tar" in spec["paths"]["/v1/uploads"]["post"]["requestBody"]["content"]
+
+
+def test_service_and_worker_contract_import_without_torch():
+    code = (
+        "import sys, service.main, service.store, worker.contract, dcseg.client; "
+        "bad = [m for m in ('torch', 'worker.execute', 'worker.stages') if m in sys.modules]; "
+        "print(bad); sys.exit(1 if bad else 0)"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.mark.xfail(
+    strict=False,
+    reason="dcseg.config imports the stage configs, whose package __init__ imports torch, and "
+    "dcseg.io.validate imports dcseg.config: validating an upload loads torch in the API",
+)
+def test_upload_validation_does_not_load_torch():
+    code = (
+        "import sys, service.uploads, dcseg.io.validate, dcseg.io.archive; "
+        "sys.exit(1 if 'torch' in sys.modules else 0)"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_unknown_route_and_method_are_problems(client):
+    assert_problem(client.get("/v2/nothing", headers=AUTH_A), 404)
+    response = client.put("/v1/jobs", headers=AUTH_A)
+    assert_problem(response, 405)
+
+
+def test_health(client):
+    assert client.get("/healthz").json() == {"status": "ok", "checks": {}}
+    ready = client.get("/readyz")
+    assert ready.status_code == 200
+    assert ready.json()["checks"] == {"database": "ok", "storage": "ok"}
+
+
+def test_not_ready_is_a_problem(client, monkeypatch):
+    state = state_of(client)
+    state.store.engine.dispose()
+
+    def broken() -> None:
+        raise ConnectionError("down")
+
+    monkeypatch.setattr(state.store, "ping", broken)
+    body = assert_problem(client.get("/readyz"), 503)
+    assert body["checks"]["database"].startswith("error")

@@ -1,0 +1,162 @@
+"""Embedded mode: ``dcseg serve`` without a broker runs jobs itself and resumes after restarts."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from datetime import timedelta
+from pathlib import Path
+
+import httpx
+import pytest
+
+from dcseg.cli import main
+from dcseg.client import Client, JobFailed
+from service.main import create_app
+from service.store import Store
+from tests.service.conftest import (
+    AUTH_A,
+    KEY_A,
+    TAR,
+    TestClient,
+    make_settings,
+    state_of,
+    tar_bytes,
+    wait_for,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+TINY = {"reconstruct": {"iterations": 3, "holdout": 0}}
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.fixture
+def serve(tmp_path: Path) -> Iterator[str]:
+    """``dcseg serve`` in a child process, with its default embedded worker; yields its URL."""
+    port = _free_port()
+    env = {
+        **os.environ,
+        "DCSEG_STORAGE_DIR": str(tmp_path / "data"),
+        "DCSEG_API_KEYS": f"tenant-a:{KEY_A}",
+        "DCSEG_POLL_INTERVAL_S": "0.1",
+        "DCSEG_DEVICE": "cpu",
+    }
+    env.pop("DCSEG_DATABASE_URL", None)
+    env.pop("DCSEG_BROKER_URL", None)
+    log = (tmp_path / "serve.log").open("wb")
+    command = [
+        sys.executable,
+        "-m",
+        "dcseg",
+        "serve",
+        "--port",
+        str(port),
+        "--log-level",
+        "warning",
+    ]
+    process = subprocess.Popen(command, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+
+    def up() -> bool:
+        assert process.poll() is None, (tmp_path / "serve.log").read_text()
+        try:
+            return httpx.get(f"{url}/readyz", timeout=1).status_code == 200
+        except httpx.TransportError:
+            return False
+
+    try:
+        wait_for(up, timeout=60, every=0.1)
+        yield url
+    finally:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5)
+        log.close()
+
+
+def test_one_command_runs_a_job_end_to_end(serve, scene, tmp_path, capsys):
+    archive = tmp_path / "scene.tar"
+    archive.write_bytes(tar_bytes(scene))
+    connection = ["--url", serve, "--api-key", KEY_A]
+    options = json.dumps(TINY)
+    assert main(["submit", str(archive), "--options", options, *connection]) == 0
+    job_id = capsys.readouterr().out.strip()
+    assert main(["wait", job_id, "--timeout", "120", *connection]) == 0
+    assert capsys.readouterr().out.strip() == f"{job_id} succeeded"
+    assert main(["download", job_id, str(tmp_path / "out"), *connection]) == 0
+    files = capsys.readouterr().out.split()
+    names = sorted(Path(f).relative_to(tmp_path / "out").as_posix() for f in files)
+    assert names == ["reconstruct/metrics.json", "reconstruct/scene.ply", "validate/report.json"]
+    assert (tmp_path / "out" / "reconstruct" / "scene.ply").read_bytes().startswith(b"ply")
+    with Client(serve, KEY_A) as client:
+        upload_id = client.status(job_id)["upload_id"]
+        bad = client.submit(upload_id, options={"reconstruct": {"no_such_knob": 1}})
+        with pytest.raises(JobFailed) as failure:
+            client.wait(bad["id"], timeout=60, poll=0.2)
+    error = failure.value.job["error"]
+    assert error["type"] == "invalid-input"
+    assert error["errors"][0]["path"] == "options.reconstruct.no_such_knob"
+    assert main(["status", bad["id"], *connection]) == 0
+    assert json.loads(capsys.readouterr().out)["status"] == "failed"
+    assert main(["wait", bad["id"], *connection]) == 1
+
+
+def test_startup_sweep_requeues_unfinished_jobs(tmp_path, scene_tar):
+    settings = make_settings(tmp_path)
+    with TestClient(create_app(settings)) as client:
+        upload = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR}).json()
+        job_id = client.post("/v1/jobs", json={"upload_id": upload["id"]}, headers=AUTH_A).json()[
+            "id"
+        ]
+        store: Store = state_of(client).store
+        assert store.claim_job(job_id, "crashed-worker", timedelta(seconds=60)) is not None
+    with TestClient(create_app(settings)) as client:
+        job = client.get(f"/v1/jobs/{job_id}", headers=AUTH_A).json()
+        assert job["status"] == "queued"
+        assert job["progress"]["message"] == "requeued at startup"
+
+
+def test_thread_worker_picks_up_queued_jobs(tmp_path, scene_tar):
+    settings = make_settings(tmp_path, embedded_worker="thread")
+    with TestClient(create_app(settings)) as client:
+        upload = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR}).json()
+        body = {
+            "upload_id": upload["id"],
+            "options": {"reconstruct": {"iterations": 1, "holdout": 0}},
+        }
+        job_id = client.post("/v1/jobs", json=body, headers=AUTH_A).json()["id"]
+
+        def finished():
+            job = client.get(f"/v1/jobs/{job_id}", headers=AUTH_A).json()
+            return job if job["status"] in ("succeeded", "failed") else None
+
+        job = wait_for(finished, timeout=120, every=0.2)
+        assert job["status"] == "succeeded", job
+        started = time.monotonic()
+    assert time.monotonic() - started < 15, "shutdown must not hang"
+
+
+def test_abandoned_temporary_uploads_are_removed_at_startup(tmp_path):
+    settings = make_settings(tmp_path)
+    old = settings.storage_dir / "uploads" / ".tmp-old"
+    recent = settings.storage_dir / "uploads" / ".tmp-recent"
+    for folder in (old, recent):
+        folder.mkdir(parents=True)
+    os.utime(old, (time.time() - 2 * 86400, time.time() - 2 * 86400))
+    with TestClient(create_app(settings)):
+        pass
+    assert not old.exists() and recent.exists()

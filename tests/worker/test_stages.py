@@ -1,0 +1,75 @@
+"""The real stages on the synthetic capture, and the Celery adapter without a broker."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from typing import Any
+
+import pytest
+
+from dcseg.errors import InputError
+from tests.worker.conftest import add_job
+from worker import celery_app
+from worker.contract import TASK_RUN_JOB, JobPaths
+from worker.execute import execute_job
+from worker.stages import ValidateStage, default_stages, reconstruct_config
+
+
+def _use_scene(settings: Any, scene: Any) -> None:
+    data = settings.storage_dir / "uploads" / "u1" / "data"
+    shutil.rmtree(data)
+    shutil.copytree(scene, data)
+
+
+def test_validate_and_reconstruct_on_a_tiny_capture(store, settings, scene):
+    _use_scene(settings, scene)
+    job_id = add_job(store, options={"reconstruct": {"iterations": 2, "holdout": 0}})
+    settings = settings.model_copy(update={"device": "cpu"})
+    assert execute_job(job_id, store, settings, stages=default_stages()) == "succeeded"
+    output = JobPaths(settings.storage_dir, job_id).output
+    report = json.loads((output / "validate" / "report.json").read_text())
+    assert report["capture"]["frames"] == 4 and report["semantic_masks"]["frames"] == 4
+    metrics = json.loads((output / "reconstruct" / "metrics.json").read_text())
+    assert metrics["gaussians"] > 0 and metrics["config"]["iterations"] == 2
+    assert (output / "reconstruct" / "scene.ply").read_bytes().startswith(b"ply")
+
+
+def test_validate_stage_reports_damaged_inputs(store, settings, scene):
+    _use_scene(settings, scene)
+    data = settings.storage_dir / "uploads" / "u1" / "data"
+    next((data / "depth").iterdir()).unlink()
+    job_id = add_job(store)
+    assert execute_job(job_id, store, settings, stages=[ValidateStage()]) == "failed"
+    error = store.get_job(job_id).error
+    assert error["type"] == "invalid-input" and error["errors"]
+
+
+def test_reconstruct_config_checks_preset_and_fields():
+    cfg = reconstruct_config({"preset": "fast", "options": {"reconstruct": {"iterations": 7}}})
+    assert cfg.iterations == 7
+    with pytest.raises(InputError, match="unknown preset"):
+        reconstruct_config({"preset": "nope"})
+    with pytest.raises(InputError, match="options.reconstruct.bogus"):
+        reconstruct_config({"preset": "fast", "options": {"reconstruct": {"bogus": 1}}})
+    with pytest.raises(InputError, match="iterations"):
+        reconstruct_config({"preset": "fast", "options": {"reconstruct": {"iterations": -1}}})
+
+
+def test_celery_settings_and_task_adapter(monkeypatch):
+    conf = celery_app.app.conf
+    assert conf.task_acks_late and conf.task_reject_on_worker_lost
+    assert conf.worker_prefetch_multiplier == 1
+    assert conf.task_routes[TASK_RUN_JOB] == {"queue": "gpu"}
+    assert conf.broker_transport_options["visibility_timeout"] >= 3600
+    assert conf.task_soft_time_limit < conf.task_time_limit
+    calls = []
+
+    def fake_execute(job_id: str, store: Any, settings: Any) -> str:
+        calls.append(job_id)
+        return "succeeded"
+
+    monkeypatch.setattr(celery_app, "execute_job", fake_execute)
+    monkeypatch.setattr(celery_app, "_store", lambda: None)
+    assert celery_app.run_job.run("job-9") == "succeeded"
+    assert calls == ["job-9"] and celery_app.run_job.name == TASK_RUN_JOB

@@ -1,0 +1,149 @@
+"""The pipeline stages the worker runs, as adapters over the dcseg library.
+
+Each stage reads the job's inputs, calls one dcseg entry function and writes its files into
+the folder it is given. Heavy imports (torch) happen inside ``run``, in the worker process.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from worker.contract import input_layout
+from worker.execute import Stage, StageContext, StageOutcome
+
+
+def _write_json(path: Path, data: Any) -> None:
+    path.write_text(json.dumps(data, indent=2, sort_keys=True, default=str), encoding="utf-8")
+
+
+def capture_options(config: dict[str, Any]) -> Any:
+    """``dcseg.config.CaptureOptions`` from a job's stored options (JSON lists become tuples)."""
+    from dcseg.config import CaptureOptions
+    from dcseg.errors import InputError, Problem
+
+    raw = config.get("options", {}).get("capture", {})
+    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()}
+    try:
+        return CaptureOptions(**values)
+    except (TypeError, ValueError) as error:
+        raise InputError([Problem("options.capture", str(error))]) from None
+
+
+class ValidateStage:
+    """Re-check the inputs (they were checked at upload; the reader may have changed)."""
+
+    name = "validate"
+
+    def key(self, config: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "capture": config.get("options", {}).get("capture", {}),
+            "inputs": config.get("inputs"),
+        }
+
+    def run(self, ctx: StageContext, out: Path) -> StageOutcome:
+        from dcseg.errors import InputError
+        from dcseg.io.validate import InputPaths, validate_inputs
+
+        ctx.progress(0.0, "validate: reading inputs")
+        paths = InputPaths(**input_layout(ctx.input_root))
+        report = validate_inputs(paths, capture_options(ctx.config))
+        if report.problems:
+            raise InputError(report.problems)
+        _write_json(out / "report.json", report.summary)
+        frames = report.summary.get("capture", {}).get("frames")
+        return StageOutcome("done", f"validate: {frames} frames OK")
+
+
+class ReconstructStage:
+    """Stage 1 of DCSEG: fit 3D Gaussians to the posed RGB-D frames (``scene.ply``)."""
+
+    name = "reconstruct"
+
+    def key(self, config: dict[str, Any]) -> dict[str, Any]:
+        options = config.get("options", {})
+        return {
+            "preset": config.get("preset"),
+            "capture": options.get("capture", {}),
+            "reconstruct": options.get("reconstruct", {}),
+            "capture_sha256": config.get("inputs", {}).get("capture"),
+            "upload": config.get("inputs", {}).get("upload"),
+        }
+
+    def run(self, ctx: StageContext, out: Path) -> StageOutcome:
+        try:
+            from dcseg import reconstruct
+        except ImportError as error:
+            return StageOutcome("skipped", f"reconstruct: not available ({error})")
+        if not hasattr(reconstruct, "fit_gaussians"):
+            return StageOutcome("skipped", "reconstruct: dcseg.reconstruct has no fit_gaussians")
+        from dcseg.io.captures import read_capture
+        from dcseg.io.ply import write_gaussians_ply
+
+        cfg = reconstruct_config(ctx.config)
+        capture = read_capture(ctx.input_root, capture_options(ctx.config))
+
+        def on_progress(iteration: int, total: int, loss: float) -> None:
+            message = f"reconstruct: step {iteration}/{total}, loss {loss:.4f}"
+            ctx.progress(iteration / max(total, 1), message)
+
+        result = reconstruct.fit_gaussians(
+            capture, cfg, device=resolve_device(ctx.settings.device), on_progress=on_progress
+        )
+        write_gaussians_ply(out / "scene.ply", result.gaussians)
+        metrics = {
+            "gaussians": len(result.gaussians),
+            "initial_gaussians": result.initial_count,
+            "extent_m": result.extent,
+            "psnr": _finite(result.metrics.psnr),
+            "depth_mae_m": _finite(result.metrics.depth_mae),
+            "train_frames": list(result.train_frames),
+            "test_frames": list(result.test_frames),
+            "final_loss": result.losses[-1] if result.losses else None,
+            "seconds": result.seconds,
+            "config": dataclasses.asdict(cfg),
+        }
+        _write_json(out / "metrics.json", metrics)
+        return StageOutcome("done", f"reconstruct: {len(result.gaussians)} Gaussians")
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def reconstruct_config(config: dict[str, Any]) -> Any:
+    """The preset named by the job, with its overrides; InputError naming a bad field."""
+    from dcseg.errors import InputError, Problem
+    from dcseg.reconstruct import PRESETS
+
+    preset = str(config.get("preset", "fast"))
+    if preset not in PRESETS:
+        known = ", ".join(sorted(PRESETS))
+        raise InputError([Problem("preset", f"unknown preset {preset!r} (known: {known})")])
+    overrides = dict(config.get("options", {}).get("reconstruct", {}))
+    fields = {f.name for f in dataclasses.fields(PRESETS[preset])}
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        reason = "not a reconstruction parameter"
+        raise InputError([Problem(f"options.reconstruct.{name}", reason) for name in unknown])
+    try:
+        return dataclasses.replace(PRESETS[preset], **overrides)
+    except (TypeError, ValueError) as error:
+        raise InputError([Problem("options.reconstruct", str(error))]) from None
+
+
+def resolve_device(device: str) -> str:
+    """``auto`` = CUDA when available; imported here so CUDA starts in the worker process only."""
+    if device != "auto":
+        return device
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def default_stages() -> list[Stage]:
+    """The stages that exist today, in order."""
+    return [ValidateStage(), ReconstructStage()]

@@ -102,3 +102,37 @@ class BlendWeights:
         out = torch.zeros(self.height * self.width * n_groups, dtype=self.weights.dtype)
         out = out.to(self.weights.device).index_add(0, flat, self.weights[keep])
         return out.reshape(self.height, self.width, n_groups)
+
+    def dominant_group(self, group: Tensor, min_weight: float) -> Tensor:
+        """Per pixel, the group with the largest accumulated weight, if at least ``min_weight``.
+
+        One pass for all groups and O(nnz) memory (never ``[H, W, K]``); ties go to the lower
+        group index.
+
+        Args:
+            group: ``[N]`` int64 group (e.g. cluster) of every Gaussian, ``-1`` = none.
+            min_weight: smallest accumulated weight that claims a pixel.
+
+        Returns:
+            ``[H, W]`` int64 group per pixel, ``-1`` = none.
+        """
+        n_pixels = self.height * self.width
+        out = torch.full((n_pixels,), -1, dtype=torch.int64, device=self.ids.device)
+        g = group.to(self.ids.device)[self.ids.long()]
+        keep = g >= 0
+        if not bool(keep.any()):
+            return out.reshape(self.height, self.width)
+        n_groups = int(g.max()) + 1
+        keys = self.rows()[keep] * n_groups + g[keep]
+        unique, inverse = torch.unique(keys, return_inverse=True)
+        sums = torch.zeros(unique.shape[0], dtype=self.weights.dtype, device=self.ids.device)
+        sums = sums.index_add(0, inverse, self.weights[keep])
+        pixel, members = unique // n_groups, unique % n_groups
+        best = torch.zeros(n_pixels, dtype=sums.dtype, device=sums.device)
+        best = best.scatter_reduce(0, pixel, sums, reduce="amax")
+        win = (sums >= best[pixel]) & (sums >= min_weight)
+        first = torch.full((n_pixels,), n_groups, dtype=torch.int64, device=sums.device)
+        first = first.scatter_reduce(0, pixel[win], members[win], reduce="amin")
+        claimed = first < n_groups
+        out[claimed] = first[claimed]
+        return out.reshape(self.height, self.width)

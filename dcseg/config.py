@@ -5,7 +5,17 @@ This module must never import torch: the HTTP service imports it to describe job
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
+
+from dcseg.affinity.config import PRESETS as AFFINITY_PRESETS
+from dcseg.affinity.config import AffinityConfig
+from dcseg.assign.config import AssignConfig
+from dcseg.cluster.config import ClusterConfig
+from dcseg.evaluate.config import EvaluateConfig
+from dcseg.reconstruct.config import PRESETS as RECONSTRUCT_PRESETS
+from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.segment.config import MaskConfig
 
 
 @dataclass(frozen=True)
@@ -37,3 +47,104 @@ class CaptureOptions:
             raise ValueError(f"size must be positive, got {self.size}")
         if self.depth_trunc is not None and self.depth_trunc <= 0:
             raise ValueError(f"depth_trunc must be > 0, got {self.depth_trunc}")
+
+
+@dataclass(frozen=True)
+class CacheConfig:
+    """Truncation of the per-view blending-weight cache (:mod:`dcseg.render.blend_weights`).
+
+    Attributes:
+        min_weight: contributions below this blending weight are not stored.
+        max_per_pixel: at most this many contributions are stored per pixel (front-most).
+    """
+
+    min_weight: float = 1e-3
+    max_per_pixel: int = 32
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Every method parameter of a run; travels with a job and is stored in ``run.json``.
+
+    Attributes:
+        reconstruct, affinity, cluster, masks, assign, evaluate: each stage's own config.
+        cache: the blending-weight cache truncation.
+        scale: the clustering scale in quantile space [0, 1] (paper: 0.8); re-clustering at
+            another scale reuses everything trained.
+        seed: the seed every stage's random choices derive from.
+    """
+
+    reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
+    affinity: AffinityConfig = field(default_factory=AffinityConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    masks: MaskConfig = field(default_factory=MaskConfig)
+    assign: AssignConfig = field(default_factory=AssignConfig)
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
+    cache: CacheConfig = field(default_factory=CacheConfig)
+    scale: float = 0.8
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.scale <= 1.0:
+            raise ValueError(f"scale must be in [0, 1] (quantile space), got {self.scale}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (see :meth:`from_dict`)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> PipelineConfig:
+        """Rebuild from :meth:`to_dict` output; unknown keys raise ``ValueError``."""
+        parts: dict[str, Any] = {}
+        for f in fields(cls):
+            if f.name not in data:
+                continue
+            value = data[f.name]
+            stage = _STAGES.get(f.name)
+            parts[f.name] = _build(stage, value, f.name) if stage else value
+        unknown = sorted(set(data) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown pipeline config keys: {', '.join(unknown)}")
+        return cls(**parts)
+
+    def seeded(self, seed: int) -> PipelineConfig:
+        """The same config with ``seed`` given to every stage."""
+        return replace(
+            self,
+            seed=seed,
+            reconstruct=replace(self.reconstruct, seed=seed),
+            affinity=replace(self.affinity, seed=seed),
+            cluster=replace(self.cluster, seed=seed),
+        )
+
+
+def _build(stage: type[Any], value: Any, name: str) -> Any:
+    if not isinstance(value, dict):
+        raise ValueError(f"pipeline config {name!r} must be an object, got {type(value).__name__}")
+    known = {f.name for f in fields(stage)}
+    unknown = sorted(set(value) - known)
+    if unknown:
+        raise ValueError(f"unknown keys in pipeline config {name!r}: {', '.join(unknown)}")
+    kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
+    return stage(**kwargs)
+
+
+_STAGES: dict[str, type[Any]] = {
+    "reconstruct": ReconstructConfig,
+    "affinity": AffinityConfig,
+    "cluster": ClusterConfig,
+    "masks": MaskConfig,
+    "assign": AssignConfig,
+    "evaluate": EvaluateConfig,
+    "cache": CacheConfig,
+}
+
+
+def preset(name: str) -> PipelineConfig:
+    """The named pipeline configuration: ``"fast"`` (CPU-friendly) or ``"paper"``."""
+    if name not in ("fast", "paper"):
+        raise ValueError(f"unknown preset {name!r}; choose fast or paper")
+    return PipelineConfig(
+        reconstruct=RECONSTRUCT_PRESETS[name],
+        affinity=AFFINITY_PRESETS[name],
+    )

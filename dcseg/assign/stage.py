@@ -88,8 +88,9 @@ def assign_labels(
 ) -> Assignment:
     """Label clusters with classes by per-view matching and IoU-weighted voting (§6, B.7).
 
-    Per view: compute the ``[K, C]`` IoU of the (cleaned) cluster map with the class map, match (:func:`~dcseg.assign.matching.match_view`); then sum the
-    matched IoUs per (cluster, class) over views and take the best class per cluster. Views
+    Per view: compute the ``[K, C]`` IoU of the (cleaned) cluster map with the class map and
+    match (:func:`~dcseg.assign.matching.match_view`); then sum the matched IoUs per
+    (cluster, class) over views and take the best class per cluster. Views
     are processed one at a time: memory is O(H x W + K x C).
 
     Args:

@@ -47,8 +47,8 @@ class ClusterConfig:
             ``radius_factor`` x the median nearest-neighbour spacing of all Gaussian centres.
         radius_factor: multiplier of the adaptive radius.
         min_component_size: components with fewer Gaussians than this become noise.
-        min_component_fraction: components holding less than this fraction of their cluster's
-            total weight (e.g. opacity) become noise.
+        min_component_fraction: components lighter (e.g. summed opacity) than this fraction of
+            their cluster's heaviest component become noise.
     """
 
     clusterer: ClustererName = "hdbscan"

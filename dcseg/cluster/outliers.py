@@ -52,11 +52,17 @@ def component_labels(positions: NDArray[np.float64], radius: float) -> NDArray[n
 def _small_components(
     comp: NDArray[np.int64], weights: NDArray[np.float64], min_size: int, min_fraction: float
 ) -> NDArray[np.bool_]:
-    """Per member: does its component fall below the size or weight-share threshold?"""
+    """Per member: is its component a fragment (too few Gaussians or too light)?
+
+    The weight threshold is relative to the cluster's heaviest component, which is therefore
+    never dropped for weight: a cluster whose graph falls apart into many similar pieces keeps
+    them, and only fragments much lighter than its main body go.
+    """
     sizes = np.bincount(comp)
     comp_weight = np.bincount(comp, weights=weights)
-    total = comp_weight.sum()
-    share = comp_weight / total if total > 0 else sizes / sizes.sum()
+    if comp_weight.max() <= 0:
+        comp_weight = sizes.astype(np.float64)
+    share = comp_weight / comp_weight.max()
     small = (sizes < min_size) | (share < min_fraction)
     return np.asarray(small[comp], dtype=np.bool_)
 
@@ -73,9 +79,9 @@ def remove_outliers_3d(
     """Set Gaussians in small, disconnected fragments of their cluster to -1.
 
     For every cluster, its Gaussian centres are linked when closer than ``radius``; each
-    connected component with fewer than ``min_component_size`` Gaussians, or with less than
-    ``min_component_fraction`` of the cluster's total weight, is dropped. Cluster ids are not
-    re-indexed here (a cluster may become empty).
+    connected component with fewer than ``min_component_size`` Gaussians, or lighter than
+    ``min_component_fraction`` x the weight of the cluster's heaviest component, is dropped.
+    Cluster ids are not re-indexed here (a cluster may become empty).
 
     Args:
         positions: ``[N, 3]`` Gaussian centres.
@@ -84,7 +90,8 @@ def remove_outliers_3d(
             weight is 0 uses Gaussian counts instead.
         radius: graph radius in world units (> 0).
         min_component_size: minimum Gaussians per kept component.
-        min_component_fraction: minimum weight share of a kept component within its cluster.
+        min_component_fraction: minimum weight of a kept component, relative to the cluster's
+            heaviest component.
 
     Returns:
         ``[N]`` int64 labels with the dropped Gaussians set to -1 (a new array).

@@ -60,3 +60,19 @@ def test_exception_bad_offsets() -> None:
 def test_nbytes_counts_storage() -> None:
     blend = random_blend(3, 3, 4)
     assert blend.nbytes() == 8 * 10 + 8 * blend.nnz + 4 * blend.nnz
+
+
+def test_dominant_group_matches_dense_argmax() -> None:
+    blend = random_blend(9, 7, 30, seed=5)
+    group = torch.randint(-1, 4, (30,), generator=torch.Generator().manual_seed(0))
+    dense = blend.accumulate_groups(group, 4)
+    best, arg = dense.max(dim=-1)
+    expected = torch.where(best >= 0.2, arg, torch.full_like(arg, -1))
+    assert torch.equal(blend.dominant_group(group, 0.2), expected)
+
+
+def test_dominant_group_ties_and_none() -> None:
+    offsets = torch.tensor([0, 2, 3, 3])
+    blend = BlendWeights(1, 3, offsets, torch.tensor([0, 1, 2]), torch.tensor([0.5, 0.5, 0.9]))
+    assert blend.dominant_group(torch.tensor([1, 0, -1]), 0.1).tolist() == [[0, -1, -1]]
+    assert blend.dominant_group(torch.tensor([-1, -1, -1]), 0.1).tolist() == [[-1, -1, -1]]

@@ -86,7 +86,8 @@ def test_intrinsics_scaled_keeps_pixel_centres() -> None:
     assert (half.fx, half.fy) == (300.0, 300.0)
     # The image centre stays the image centre under the pixel-centre convention.
     assert (half.cx, half.cy) == (299.5, 169.5)
-    assert np.allclose(half.matrix(), [[300, 0, 299.5], [0, 300, 169.5], [0, 0, 1]])
+    expected = np.array([[300, 0, 299.5], [0, 300, 169.5], [0, 0, 1]])
+    assert np.allclose(half.matrix(), expected)
 
 
 def test_bad_intrinsics_and_colour_reported() -> None:

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from dcseg.cli import main
+from dcseg.io.images import read_image
 from dcseg.io.validate import InputPaths, validate_inputs
 
 pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")
@@ -112,7 +113,7 @@ def mask_without_frame(root: Path) -> str:
 
 def class_beyond_vocabulary(root: Path) -> str:
     path = root / "masks" / "semantic" / f"{first_stem(root)}.png"
-    classes = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    classes = read_image(path).copy()
     classes[0, 0] = 200
     cv2.imwrite(str(path), classes)
     return "200"

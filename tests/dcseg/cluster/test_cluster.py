@@ -106,7 +106,7 @@ def test_remove_outliers_by_size_and_weight_share() -> None:
         pos, labels, weights, radius=0.15, min_component_size=10, min_component_fraction=0.05
     )
     np.testing.assert_array_equal(out, np.repeat([0, -1, 1, 1], [50, 5, 40, 20]))
-    weights[95:] = 0.01  # the 20-piece now holds < 5 % of cluster 1's weight
+    weights[95:] = 0.01  # the 20-piece now weighs < 5 % of cluster 1's main body
     out = remove_outliers_3d(
         pos, labels, weights, radius=0.15, min_component_size=10, min_component_fraction=0.05
     )

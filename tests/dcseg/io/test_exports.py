@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from dcseg.io.exports import (
@@ -18,6 +17,7 @@ from dcseg.io.exports import (
     write_preview,
     write_view_maps,
 )
+from dcseg.io.images import read_image
 from dcseg.types import Vocabulary
 
 VOCAB = Vocabulary(("wall", "floor", "duck"))
@@ -62,8 +62,8 @@ def test_view_maps_use_zero_for_none(tmp_path: Path) -> None:
     instances = np.array([[-1, 0], [4, 1]])
     classes = np.array([[2, -1], [0, 0]])
     write_view_maps(tmp_path, "seq/frame", instances, classes)
-    masks = cv2.imread(str(tmp_path / "masks" / "seq" / "frame.png"), cv2.IMREAD_UNCHANGED)
-    labels = cv2.imread(str(tmp_path / "labels" / "seq" / "frame.png"), cv2.IMREAD_UNCHANGED)
+    masks = read_image(tmp_path / "masks" / "seq" / "frame.png")
+    labels = read_image(tmp_path / "labels" / "seq" / "frame.png")
     assert masks.dtype == np.uint16 and masks.tolist() == [[0, 1], [5, 2]]
     assert labels.tolist() == [[3, 0], [1, 1]]
 
@@ -80,5 +80,5 @@ def test_preview_sheet_layout(tmp_path: Path) -> None:
     inst = np.zeros((12, 16), np.int64)
     cls = np.full((12, 16), 2)
     write_preview(tmp_path / "preview.png", [(rgb, inst, cls), (rgb, inst - 1, cls)], 1, VOCAB)
-    sheet = cv2.imread(str(tmp_path / "preview.png"))
+    sheet = read_image(tmp_path / "preview.png")
     assert sheet.shape[1] == 48 and sheet.shape[0] > 24

@@ -1,0 +1,61 @@
+"""Options and error reporting shared by the verbs that run the segmentation pipeline."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+from dcseg.config import PipelineConfig, preset
+
+log = logging.getLogger("dcseg")
+
+Job = Callable[[Callable[[str, float, str], None]], dict[str, Any]]
+
+
+def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
+    """``--preset --matcher --scale --seed --overwrite --quiet``."""
+    group = parser.add_argument_group("method")
+    group.add_argument("--preset", choices=("fast", "paper"), default="fast", help="(fast)")
+    group.add_argument(
+        "--matcher", choices=("assignment", "matching"), default="assignment", help="(assignment)"
+    )
+    group.add_argument("--scale", type=float, default=0.8, help="clustering scale in [0, 1]")
+    group.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    add_output_options(parser)
+
+
+def add_output_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
+    cfg = preset(args.preset).seeded(args.seed)
+    try:
+        return replace(cfg, scale=args.scale, assign=replace(cfg.assign, mode=args.matcher))
+    except ValueError as error:
+        raise SystemExit(f"dcseg: {error}") from None
+
+
+def run_reporting(job: Job, args: argparse.Namespace) -> int:
+    """Run a job with progress bars; turn input errors into a listed report and exit 1."""
+    from dcseg.cli._progress import StageBars
+    from dcseg.cli.run import summary_line
+    from dcseg.errors import InputError
+
+    if args.out.exists() and any(args.out.iterdir()) and not args.overwrite:
+        sys.stderr.write(f"dcseg: {args.out} is not empty; pass --overwrite to replace it\n")
+        return 2
+    try:
+        with StageBars(enabled=not args.quiet) as bars:
+            record = job(bars)
+    except InputError as error:
+        sys.stderr.write(f"dcseg: {len(error.problems)} problem(s):\n")
+        sys.stderr.writelines(f"  - {p}\n" for p in error.problems)
+        return 1
+    log.info("%s: %s", args.out, summary_line(record))
+    return 0

@@ -1,0 +1,55 @@
+"""``dcseg run``: reconstruct, train, cluster, classify and export a capture."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from dcseg.cli._options import add_capture_options, capture_options
+from dcseg.cli._pipeline import add_pipeline_options, pipeline_config, run_reporting
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "run",
+        help="segment a capture end to end",
+        description="Reconstruct Gaussians (unless --scene is given), train affinity features, "
+        "cluster, classify with the class-aware masks and write the segmented scene to OUT.",
+    )
+    parser.add_argument("capture", type=Path, help="capture folder or archive")
+    parser.add_argument("--agnostic-masks", type=Path, required=True, help="class-agnostic masks")
+    parser.add_argument("--semantic-masks", type=Path, required=True, help="class-aware maps")
+    parser.add_argument("--vocabulary", type=Path, required=True, help="class names")
+    parser.add_argument("--gt", type=Path, help="ground-truth PLY: also write metrics.json")
+    parser.add_argument("--scene", type=Path, help="use this 3DGS scene.ply, skip reconstruction")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    add_pipeline_options(parser)
+    add_capture_options(parser)
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from dcseg.jobs import RunInputs, run_job
+
+    inputs = RunInputs(
+        capture=args.capture,
+        agnostic_masks=args.agnostic_masks,
+        semantic_masks=args.semantic_masks,
+        vocabulary=args.vocabulary,
+        ground_truth=args.gt,
+        scene=args.scene,
+        capture_options=capture_options(args),
+    )
+    cfg = pipeline_config(args)
+    return run_reporting(lambda progress: run_job(inputs, cfg, args.out, progress), args)
+
+
+def summary_line(record: dict[str, Any]) -> str:
+    """One line for the terminal: counts and, with ground truth, the mIoU table."""
+    counts = record["counts"]
+    text = f"{counts['clusters']} instances, {counts['labelled_clusters']} labelled"
+    if record.get("metrics_summary"):
+        text += " | " + json.dumps(record["metrics_summary"])
+    return text

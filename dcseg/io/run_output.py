@@ -1,0 +1,191 @@
+"""A run's output folder: the exports for apps, and the state that re-segmentation reuses.
+
+Layout of ``OUT/`` (all written into a sibling temporary folder, renamed into place at the end,
+so a crashed run never leaves a half-written output)::
+
+    scene.ply, scene_labelled.ply     3DGS PLY; the latter adds int instance_id, semantic_id
+    instances.json, labels.json       objects and vocabulary (see dcseg.io.exports)
+    masks/<stem>.png, labels/<stem>.png   per-view instance ids / class index + 1 (0 = none)
+    preview.png                       contact sheet of a few views
+    metrics.json                      when ground truth was given
+    run.json                          config, per-stage seconds, peak memory, versions, seed
+    state/                            trained state (see dcseg.io.run_state) + class masks used
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from plyfile import PlyData
+
+from dcseg.errors import InputError
+from dcseg.io.exports import (
+    instance_records,
+    write_instances_json,
+    write_labels_json,
+    write_preview,
+    write_view_maps,
+)
+from dcseg.io.images import read_image, write_png
+from dcseg.io.ply import read_gaussians_ply, write_gaussians_ply
+from dcseg.io.run_state import load_affinity, load_views, save_affinity, save_views
+from dcseg.io.semantic import (
+    read_semantic_maps,
+    read_vocabulary,
+    write_semantic_png,
+    write_vocabulary,
+)
+from dcseg.pipeline import Labels, Segmentation, TrainedScene
+from dcseg.types import SemanticMap, Vocabulary
+
+PREVIEW_VIEWS = 4
+
+
+@dataclass(frozen=True)
+class SavedRun:
+    """What a finished run folder gives back for re-clustering or re-classifying."""
+
+    trained: TrainedScene
+    semantic: dict[str, SemanticMap]
+    vocabulary: Vocabulary
+    previews: list[tuple[str, NDArray[np.uint8]]]
+    record: dict[str, Any]
+
+
+def preview_indices(n_views: int) -> list[int]:
+    """Indices of up to :data:`PREVIEW_VIEWS` evenly spaced views of ``n_views``."""
+    count = min(PREVIEW_VIEWS, n_views)
+    return sorted({int(round(i)) for i in np.linspace(0, n_views - 1, count)})
+
+
+def staging_dir(out: Path) -> Path:
+    """A fresh temporary sibling of ``out`` to write into."""
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    return tmp
+
+
+def publish(tmp: Path, out: Path) -> None:
+    """Move a finished staging folder to ``out`` (replacing an earlier run there)."""
+    if out.exists():
+        shutil.rmtree(out)
+    tmp.rename(out)
+
+
+def write_outputs(
+    out: Path,
+    trained: TrainedScene,
+    segmentation: Segmentation,
+    vocabulary: Vocabulary,
+    previews: Sequence[tuple[str, NDArray[np.uint8]]],
+) -> None:
+    """Write every export of a segmentation into ``out`` (an existing, empty folder)."""
+    g = trained.gaussians
+    write_gaussians_ply(out / "scene.ply", g)
+    labels = segmentation.clustering.labels
+    instance_id = np.where(labels >= 0, labels + 1, -1)
+    extra = {"instance_id": instance_id, "semantic_id": segmentation.semantic_ids}
+    write_gaussians_ply(out / "scene_labelled.ply", g, extra=extra)
+    a = segmentation.assignment
+    means = g.means.detach().cpu().numpy()
+    records = instance_records(means, labels, a.labels, a.scores, a.n_views, vocabulary)
+    write_instances_json(out / "instances.json", records, out / "scene_labelled.ply")
+    write_labels_json(out / "labels.json", vocabulary)
+    for name, ids in segmentation.cluster_maps.items():
+        write_view_maps(out, name, ids, segmentation.label_maps[name])
+    sheet = [
+        (rgb, segmentation.cluster_maps[name], segmentation.label_maps[name])
+        for name, rgb in previews
+    ]
+    if sheet:
+        write_preview(out / "preview.png", sheet, segmentation.n_instances, vocabulary)
+
+
+def save_state(
+    out: Path,
+    trained: TrainedScene,
+    semantic: Mapping[str, SemanticMap],
+    vocabulary: Vocabulary,
+    previews: Sequence[tuple[str, NDArray[np.uint8]]],
+) -> None:
+    """Write ``out/state/``: everything re-clustering and re-classifying need."""
+    state = out / "state"
+    state.mkdir(parents=True, exist_ok=True)
+    write_gaussians_ply(state / "gaussians.ply", trained.gaussians)
+    save_affinity(state / "affinity.npz", trained.affinity)
+    save_views(state, trained.views)
+    save_semantic(state, semantic, vocabulary)
+    for i, (_, rgb) in enumerate(previews):
+        write_png(state / "preview" / f"{i}.png", rgb)
+    names = [name for name, _ in previews]
+    write_json(state / "preview.json", {"views": names})
+
+
+def save_semantic(state: Path, semantic: Mapping[str, SemanticMap], vocabulary: Vocabulary) -> None:
+    """Write the class masks a segmentation used, and their vocabulary, into ``state``."""
+    folder = state / "semantic"
+    if folder.exists():
+        shutil.rmtree(folder)
+    for name, m in semantic.items():
+        write_semantic_png(folder / f"{name}.png", m, len(vocabulary))
+    folder.mkdir(parents=True, exist_ok=True)
+    write_vocabulary(state / "vocabulary.json", vocabulary)
+
+
+def load_run(run: Path) -> SavedRun:
+    """Read a finished run folder's state; raises InputError naming what is missing."""
+    state = run / "state"
+    if not (run / "run.json").is_file() or not state.is_dir():
+        raise InputError.single(str(run), "not a dcseg run folder (no run.json and state/)")
+    gaussians = read_gaussians_ply(state / "gaussians.ply")
+    trained = TrainedScene(
+        gaussians, load_affinity(state / "affinity.npz"), tuple(load_views(state))
+    )
+    vocabulary = read_vocabulary(state / "vocabulary.json")
+    semantic = read_semantic_maps(state / "semantic", vocabulary)
+    names = json.loads((state / "preview.json").read_text(encoding="utf-8"))["views"]
+    previews = [(str(n), read_image(state / "preview" / f"{i}.png")) for i, n in enumerate(names)]
+    record = json.loads((run / "run.json").read_text(encoding="utf-8"))
+    return SavedRun(trained, semantic, vocabulary, previews, record)
+
+
+def load_labels(run: Path, names: Sequence[str]) -> Labels:
+    """Read a run's exported labels back: ``semantic_id`` per Gaussian and ``labels/`` maps."""
+    path = run / "scene_labelled.ply"
+    try:
+        vertex = PlyData.read(str(path))["vertex"]
+        semantic_ids = np.asarray(vertex["semantic_id"], dtype=np.int64)
+    except (OSError, ValueError, KeyError) as error:
+        raise InputError.single(str(path), f"cannot read semantic_id: {error}") from None
+    maps = {n: read_image(run / "labels" / f"{n}.png").astype(np.int64) - 1 for n in names}
+    return Labels(semantic_ids, maps)
+
+
+def write_json(path: Path, body: Any) -> None:
+    """Write JSON with NaN/inf as null (strict JSON for every client)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(_finite(body), indent=1, allow_nan=False)
+    path.write_text(text + "\n", encoding="utf-8")
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    if isinstance(value, np.generic):
+        return _finite(value.item())
+    return value

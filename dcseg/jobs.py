@@ -1,0 +1,335 @@
+"""Whole jobs over files: run, re-cluster, re-classify, evaluate (used by the CLI and workers).
+
+Each job reads its inputs, calls the pipeline, and publishes a complete output folder
+(:mod:`dcseg.io.run_output`). Nothing here prints; progress goes through ``on_progress``.
+"""
+
+from __future__ import annotations
+
+import platform
+import resource
+import shutil
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from dcseg import __version__
+from dcseg.config import CaptureOptions, PipelineConfig
+from dcseg.errors import InputError
+from dcseg.gaussians import Gaussians
+from dcseg.io.captures import read_capture
+from dcseg.io.ground_truth import read_ground_truth
+from dcseg.io.masks import read_agnostic_masks
+from dcseg.io.ply import read_gaussians_ply
+from dcseg.io.run_output import (
+    SavedRun,
+    load_labels,
+    load_run,
+    preview_indices,
+    publish,
+    save_semantic,
+    save_state,
+    staging_dir,
+    write_json,
+    write_outputs,
+)
+from dcseg.io.semantic import read_semantic_maps, read_vocabulary
+from dcseg.pipeline import (
+    Progress,
+    Segmentation,
+    evaluate_segmentation,
+    segment_scene,
+    train_scene,
+)
+from dcseg.render import select_backend
+from dcseg.types import Capture, GroundTruth, SemanticMap, Vocabulary
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """The files of one segmentation job."""
+
+    capture: Path
+    agnostic_masks: Path
+    semantic_masks: Path
+    vocabulary: Path
+    ground_truth: Path | None = None
+    scene: Path | None = None
+    capture_options: CaptureOptions = field(default_factory=CaptureOptions)
+
+
+class _Clock:
+    """Seconds per named phase."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def phase(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        yield
+        self.seconds[name] = round(self.seconds.get(name, 0.0) + time.perf_counter() - start, 3)
+
+
+def _quiet(stage: str, fraction: float, message: str) -> None:
+    return None
+
+
+def run_job(
+    inputs: RunInputs, cfg: PipelineConfig, out: Path, on_progress: Progress = _quiet
+) -> dict[str, Any]:
+    """Reconstruct (unless a scene is given), train, segment, evaluate and publish ``out``.
+
+    Returns:
+        The ``run.json`` record.
+    """
+    clock = _Clock()
+    with clock.phase("read"):
+        capture = read_capture(inputs.capture, inputs.capture_options)
+        size = _frame_size(capture)
+        agnostic = read_agnostic_masks(inputs.agnostic_masks, size=size)
+        vocabulary = read_vocabulary(inputs.vocabulary)
+        semantic = read_semantic_maps(inputs.semantic_masks, vocabulary, size=size)
+        gt = _read_gt(inputs.ground_truth, vocabulary)
+    _check_names(capture, agnostic, semantic)
+    reconstruction: dict[str, Any] = {}
+    with clock.phase("reconstruct"):
+        gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction)
+    with clock.phase("train"):
+        trained = train_scene(gaussians, capture, agnostic, cfg, on_progress)
+    picked = [capture.frames[i] for i in preview_indices(len(capture))]
+    previews = [(f.name, f.rgb) for f in picked]
+    record = {"inputs": _describe(inputs), "reconstruction": reconstruction}
+    saved = SavedRun(trained, dict(semantic), vocabulary, previews, record)
+    return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True)
+
+
+def recluster_job(
+    run: Path, scale: float, out: Path, on_progress: Progress = _quiet
+) -> dict[str, Any]:
+    """Re-cluster a finished run at another scale; nothing is trained again."""
+    _check_distinct(run, out)
+    clock = _Clock()
+    with clock.phase("read"):
+        saved = load_run(run)
+    cfg = replace(_config(saved), scale=scale)
+    record = {**saved.record, "parent": str(run)}
+    return _finish(replace(saved, record=record), cfg, out, clock, None, on_progress)
+
+
+def reclassify_job(
+    run: Path,
+    semantic_masks: Path,
+    vocabulary_file: Path,
+    out: Path,
+    on_progress: Progress = _quiet,
+) -> dict[str, Any]:
+    """Re-classify a finished run with another segmenter's class masks; nothing is retrained."""
+    _check_distinct(run, out)
+    clock = _Clock()
+    with clock.phase("read"):
+        saved = load_run(run)
+        vocabulary = read_vocabulary(vocabulary_file)
+        size = (saved.trained.views[0].blend.width, saved.trained.views[0].blend.height)
+        semantic = read_semantic_maps(semantic_masks, vocabulary, size=size)
+    _check_subset(semantic, {v.name for v in saved.trained.views}, str(semantic_masks))
+    record = {**saved.record, "parent": str(run)}
+    changed = replace(saved, semantic=semantic, vocabulary=vocabulary, record=record)
+    return _finish(changed, _config(saved), out, clock, None, on_progress)
+
+
+def evaluate_job(run: Path, gt_file: Path) -> dict[str, Any]:
+    """Evaluate a finished run against ground truth; writes and returns ``metrics.json``."""
+    saved = load_run(run)
+    gt = read_ground_truth(gt_file, len(saved.vocabulary))
+    labels = load_labels(run, [v.name for v in saved.trained.views])
+    metrics = evaluate_segmentation(
+        saved.trained, labels, saved.semantic, gt, saved.vocabulary, _config(saved)
+    )
+    write_json(run / "metrics.json", metrics)
+    return metrics
+
+
+def _finish(
+    saved: SavedRun,
+    cfg: PipelineConfig,
+    out: Path,
+    clock: _Clock,
+    gt: GroundTruth | None,
+    on_progress: Progress,
+    train_state: bool = False,
+) -> dict[str, Any]:
+    trained, vocabulary = saved.trained, saved.vocabulary
+    with clock.phase("segment"):
+        segmentation = segment_scene(trained, saved.semantic, len(vocabulary), cfg, on_progress)
+    tmp = staging_dir(out)
+    try:
+        with clock.phase("evaluate"):
+            metrics = _evaluate(saved, segmentation, gt, cfg, tmp)
+        with clock.phase("write"):
+            write_outputs(tmp, trained, segmentation, vocabulary, saved.previews)
+            _write_state(tmp, saved, train_state)
+        record = _record(saved, cfg, segmentation, clock, metrics)
+        write_json(tmp / "run.json", record)
+        publish(tmp, out)
+    except BaseException:
+        _discard(tmp)
+        raise
+    on_progress("done", 1.0, f"wrote {out}")
+    return record
+
+
+def _write_state(tmp: Path, saved: SavedRun, full: bool) -> None:
+    """Fresh runs save everything; derived runs copy the parent's trained state."""
+    if full:
+        save_state(tmp, saved.trained, saved.semantic, saved.vocabulary, saved.previews)
+        return
+    parent = Path(str(saved.record["parent"])) / "state"
+    _copy_tree(parent, tmp / "state", skip=("semantic", "vocabulary.json"))
+    save_semantic(tmp / "state", saved.semantic, saved.vocabulary)
+
+
+def _evaluate(
+    saved: SavedRun,
+    segmentation: Segmentation,
+    gt: GroundTruth | None,
+    cfg: PipelineConfig,
+    tmp: Path,
+) -> dict[str, Any] | None:
+    if gt is None:
+        return None
+    metrics = evaluate_segmentation(
+        saved.trained, segmentation.labels(), saved.semantic, gt, saved.vocabulary, cfg
+    )
+    write_json(tmp / "metrics.json", metrics)
+    return metrics
+
+
+def _record(
+    saved: SavedRun,
+    cfg: PipelineConfig,
+    segmentation: Segmentation,
+    clock: _Clock,
+    metrics: dict[str, Any] | None,
+) -> dict[str, Any]:
+    trained = saved.trained
+    a = segmentation.assignment
+    return {
+        **saved.record,
+        "dcseg_version": __version__,
+        "config": cfg.to_dict(),
+        "seed": cfg.seed,
+        "seconds": clock.seconds,
+        "peak_memory_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "backend": select_backend(trained.gaussians.device, cfg.reconstruct.backend),
+        "versions": _versions(),
+        "counts": {
+            "gaussians": len(trained.gaussians),
+            "views": len(trained.views),
+            "clusters": segmentation.n_instances,
+            "labelled_clusters": int((a.labels >= 0).sum()),
+            "labelled_gaussians": int((segmentation.semantic_ids >= 0).sum()),
+        },
+        "cache_mb": round(sum(v.blend.nbytes() for v in trained.views) / 2**20, 1),
+        "metrics_summary": None if metrics is None else metrics["summary"],
+    }
+
+
+def _versions() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for package in ("torch", "numpy", "numba", "hdbscan", "scipy"):
+        try:
+            versions[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:  # pragma: no cover
+            versions[package] = "missing"
+    return versions
+
+
+def _scene(
+    inputs: RunInputs,
+    capture: Capture,
+    cfg: PipelineConfig,
+    on_progress: Progress,
+    summary: dict[str, Any],
+) -> Gaussians:
+    if inputs.scene is not None:
+        summary["scene"] = str(inputs.scene)
+        return read_gaussians_ply(inputs.scene)
+    from dcseg.reconstruct import fit_gaussians
+
+    def report(step: int, total: int, loss: float) -> None:
+        on_progress("reconstruct", step / total, f"step {step}/{total} loss {loss:.4f}")
+
+    result = fit_gaussians(capture, cfg.reconstruct, on_progress=report)
+    summary.update(
+        {
+            "psnr": result.metrics.psnr,
+            "depth_mae": result.metrics.depth_mae,
+            "gaussians": len(result.gaussians),
+            "seconds": result.seconds,
+        }
+    )
+    return result.gaussians
+
+
+def _config(saved: SavedRun) -> PipelineConfig:
+    return PipelineConfig.from_dict(saved.record["config"])
+
+
+def _frame_size(capture: Capture) -> tuple[int, int]:
+    sizes = {(f.width, f.height) for f in capture.frames}
+    if len(sizes) != 1:
+        shown = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
+        raise InputError.single(
+            capture.root or "capture", f"frames differ in size ({shown}); give --size WxH"
+        )
+    return sizes.pop()
+
+
+def _read_gt(path: Path | None, vocabulary: Vocabulary) -> GroundTruth | None:
+    return None if path is None else read_ground_truth(path, len(vocabulary))
+
+
+def _check_names(
+    capture: Capture, agnostic: Mapping[str, Any], semantic: Mapping[str, SemanticMap]
+) -> None:
+    names = set(capture.names)
+    _check_subset(agnostic, names, "class-agnostic masks")
+    _check_subset(semantic, names, "class-aware masks")
+    if not any(len(agnostic[n]) for n in agnostic):
+        raise InputError.single("class-agnostic masks", "no frame has any mask")
+
+
+def _check_subset(per_frame: Mapping[str, Any], names: set[str], what: str) -> None:
+    extra = sorted(set(per_frame) - names)
+    if extra:
+        shown = ", ".join(extra[:5]) + (" ..." if len(extra) > 5 else "")
+        raise InputError.single(what, f"masks for frames the capture lacks: {shown}")
+
+
+def _describe(inputs: RunInputs) -> dict[str, Any]:
+    return {
+        "capture": str(inputs.capture),
+        "agnostic_masks": str(inputs.agnostic_masks),
+        "semantic_masks": str(inputs.semantic_masks),
+        "vocabulary": str(inputs.vocabulary),
+        "ground_truth": None if inputs.ground_truth is None else str(inputs.ground_truth),
+        "scene": None if inputs.scene is None else str(inputs.scene),
+    }
+
+
+def _check_distinct(run: Path, out: Path) -> None:
+    if out.resolve() == run.resolve():
+        raise InputError.single(str(out), "the new output must not replace the run it derives from")
+
+
+def _copy_tree(src: Path, dst: Path, skip: tuple[str, ...]) -> None:
+    shutil.copytree(src, dst, ignore=lambda folder, names: [n for n in names if n in skip])
+
+
+def _discard(tmp: Path) -> None:
+    shutil.rmtree(tmp, ignore_errors=True)

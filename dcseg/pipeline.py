@@ -1,0 +1,214 @@
+"""The DCSEG method, composed from its stages (method doc, Part B).
+
+``train_scene`` does everything that needs optimisation once (blend-weight caches and affinity
+features on frozen Gaussians); ``segment_scene`` clusters at a scale and classifies with
+class-aware masks, cheaply, as often as wanted; ``evaluate_segmentation`` scores it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
+from dcseg.assign.stage import Assignment, assign_labels
+from dcseg.cluster.features import Clustering
+from dcseg.cluster.stage import cluster_features
+from dcseg.config import CacheConfig, PipelineConfig
+from dcseg.evaluate.points import transfer_nearest, vote_projection
+from dcseg.evaluate.stage import evaluate_scenes
+from dcseg.gaussians import Gaussians
+from dcseg.io.run_state import ViewState
+from dcseg.render import Camera
+from dcseg.render.blend_weights import blend_weights
+from dcseg.segment import cluster_map, label_map
+from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
+
+Progress = Callable[[str, float, str], None]
+"""``on_progress(stage, fraction, message)``."""
+
+
+def _quiet(stage: str, fraction: float, message: str) -> None:
+    return None
+
+
+@dataclass(frozen=True)
+class TrainedScene:
+    """Everything a segmentation reuses: frozen Gaussians, their views and affinity features."""
+
+    gaussians: Gaussians
+    affinity: AffinityResult
+    views: tuple[ViewState, ...]
+
+
+@dataclass(frozen=True)
+class Labels:
+    """What evaluation needs of a segmentation (also readable back from a run's exports).
+
+    Attributes:
+        semantic_ids: ``[N]`` class per Gaussian, -1 = none.
+        label_maps: per view name, ``[H, W]`` class per pixel (-1 = none).
+    """
+
+    semantic_ids: NDArray[np.int64]
+    label_maps: dict[str, NDArray[np.int64]]
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """Instances and classes of a trained scene at one scale with one set of class masks.
+
+    Attributes:
+        clustering: cluster per Gaussian (``labels [N]``, -1 = noise).
+        assignment: class per cluster (``labels [K]``, -1 = unlabelled) and votes.
+        semantic_ids: ``[N]`` class per Gaussian, -1 = none.
+        cluster_maps: per view name, ``[H, W]`` cluster per pixel (-1 = none), cleaned.
+        label_maps: per view name, ``[H, W]`` class per pixel (-1 = none).
+    """
+
+    clustering: Clustering
+    assignment: Assignment
+    semantic_ids: NDArray[np.int64]
+    cluster_maps: dict[str, NDArray[np.int64]]
+    label_maps: dict[str, NDArray[np.int64]]
+
+    @property
+    def n_instances(self) -> int:
+        return int(self.clustering.centers.shape[0])
+
+    def labels(self) -> Labels:
+        return Labels(self.semantic_ids, self.label_maps)
+
+
+def build_views(
+    gaussians: Gaussians, capture: Capture, cfg: CacheConfig, on_progress: Progress = _quiet
+) -> tuple[ViewState, ...]:
+    """The blending-weight cache of every frame of the capture."""
+    views = []
+    for i, frame in enumerate(capture.frames):
+        camera = Camera.from_frame(frame)
+        blend = blend_weights(
+            gaussians, camera, min_weight=cfg.min_weight, max_per_pixel=cfg.max_per_pixel
+        )
+        views.append(
+            ViewState(frame.name, frame.intrinsics.matrix(), frame.c2w.copy(), blend, frame.depth)
+        )
+        on_progress("cache", (i + 1) / len(capture), f"view {frame.name}: {blend.nnz} weights")
+    return tuple(views)
+
+
+def train_scene(
+    gaussians: Gaussians,
+    capture: Capture,
+    agnostic: Mapping[str, AgnosticMasks],
+    cfg: PipelineConfig,
+    on_progress: Progress = _quiet,
+) -> TrainedScene:
+    """Cache blending weights per view and train affinity features on the frozen Gaussians.
+
+    Args:
+        gaussians: the reconstructed scene (geometry and opacity stay frozen).
+        capture: the posed RGB-D frames the masks belong to.
+        agnostic: class-agnostic masks per frame name, at the frames' resolution.
+        cfg: the pipeline configuration.
+        on_progress: progress callback.
+    """
+    frozen = gaussians.detach()
+    views = build_views(frozen, capture, cfg.cache, on_progress)
+    inputs = [AffinityView(v.name, v.blend, agnostic.get(v.name), v.depth, v.K) for v in views]
+
+    def report(step: int, total: int, loss: float) -> None:
+        on_progress("affinity", step / total, f"step {step}/{total} loss {loss:.4f}")
+
+    affinity = train_affinity(frozen, inputs, cfg.affinity, on_progress=report)
+    return TrainedScene(frozen, affinity, views)
+
+
+def segment_scene(
+    trained: TrainedScene,
+    semantic: Mapping[str, SemanticMap],
+    n_classes: int,
+    cfg: PipelineConfig,
+    on_progress: Progress = _quiet,
+) -> Segmentation:
+    """Cluster at ``cfg.scale``, render cluster maps, and label clusters from class masks."""
+    features = gated_features(trained.affinity, cfg.scale)
+    g = trained.gaussians
+    clustering = cluster_features(features, g.means, g.opacities(), cfg.cluster)
+    k = int(clustering.centers.shape[0])
+    on_progress("cluster", 1.0, f"{k} clusters")
+    maps = {}
+    for i, view in enumerate(trained.views):
+        maps[view.name] = cluster_map(view.blend, clustering.labels, cfg.masks)
+        on_progress("masks", (i + 1) / len(trained.views), f"view {view.name}")
+    labelled = [name for name in maps if name in semantic]
+    assignment = assign_labels(
+        [maps[n] for n in labelled], [semantic[n].classes for n in labelled], k, n_classes,
+        cfg.assign,
+    )  # fmt: skip
+    on_progress("assign", 1.0, f"{int((assignment.labels >= 0).sum())} of {k} clusters labelled")
+    semantic_ids = label_map(clustering.labels, assignment.labels)
+    label_maps = {name: label_map(ids, assignment.labels) for name, ids in maps.items()}
+    return Segmentation(clustering, assignment, semantic_ids, maps, label_maps)
+
+
+def evaluate_segmentation(
+    trained: TrainedScene,
+    labels: Labels,
+    semantic: Mapping[str, SemanticMap],
+    gt: GroundTruth,
+    vocabulary: Vocabulary,
+    cfg: PipelineConfig,
+) -> dict[str, Any]:
+    """Metrics of the segmentation and of naive 2D fusion on the same ground-truth points.
+
+    Returns:
+        ``{"dcseg_projection": m, "dcseg_nearest": m, "naive_fusion": m, "summary": {...}}``
+        where each ``m`` is :func:`~dcseg.evaluate.stage.evaluate_scenes` output. Projection
+        is the paper's protocol (label images, depth test); nearest transfers Gaussian labels;
+        naive fusion votes the class-aware 2D maps directly, with no 3D reasoning.
+    """
+    views = trained.views
+    n = len(vocabulary)
+    tol = cfg.evaluate.depth_tol
+    projection = _project(gt, views, [labels.label_maps[v.name] for v in views], n, tol)
+    seen = [v for v in views if v.name in semantic]
+    naive = _project(gt, seen, [semantic[v.name].classes for v in seen], n, tol)
+    nearest = transfer_nearest(
+        trained.gaussians.means.detach().cpu().numpy(),
+        labels.semantic_ids,
+        gt.points,
+        cfg.evaluate.max_distance,
+    )
+    results = {
+        name: evaluate_scenes([gt.labels], [pred], vocabulary.names, cfg.evaluate)
+        for name, pred in (
+            ("dcseg_projection", projection),
+            ("dcseg_nearest", nearest),
+            ("naive_fusion", naive),
+        )
+    }
+    summary = {name: {"miou": m["miou"], "macc": m["macc"]} for name, m in results.items()}
+    return {**results, "summary": summary}
+
+
+def _project(
+    gt: GroundTruth,
+    views: Sequence[ViewState],
+    images: Sequence[NDArray[Any]],
+    n_classes: int,
+    depth_tol: float,
+) -> NDArray[np.int64]:
+    return vote_projection(
+        gt.points,
+        images,
+        [v.depth for v in views],
+        [v.K for v in views],
+        [v.c2w for v in views],
+        n_classes,
+        depth_tol,
+    )

@@ -1,0 +1,34 @@
+"""Parameters of the cluster-mask stage (stdlib only: never imports torch)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+PAPER_MIN_AREA_FRACTION = 1000 / (1200 * 680)
+"""The paper's 2D filter (1000 px at Replica's 1200x680) as a fraction of the image."""
+
+
+@dataclass(frozen=True)
+class MaskConfig:
+    """How clusters become per-view instance maps (method doc §5, Part B §5).
+
+    Attributes:
+        min_weight: a pixel belongs to the cluster with the largest accumulated blending weight
+            when that weight is at least this (Part B §5: a fixed threshold instead of the
+            original random-palette colour sum, whose effective threshold was 0.19-1.84).
+        min_area_fraction: 2D connected-component filter (8-connectivity): components smaller
+            than this fraction of the image are removed (paper: 1000 px at 1200x680).
+    """
+
+    min_weight: float = 0.5
+    min_area_fraction: float = PAPER_MIN_AREA_FRACTION
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.min_weight <= 1.0:
+            raise ValueError(f"min_weight must be in (0, 1], got {self.min_weight}")
+        if not 0.0 <= self.min_area_fraction < 1.0:
+            raise ValueError(f"min_area_fraction must be in [0, 1), got {self.min_area_fraction}")
+
+    def min_area(self, width: int, height: int) -> int:
+        """The filter's area in pixels for a ``width`` x ``height`` view."""
+        return round(self.min_area_fraction * width * height)

@@ -1,0 +1,153 @@
+"""End to end on a tiny synthetic scene: run, re-cluster, re-classify, evaluate."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dcseg.cli import main
+from dcseg.config import PipelineConfig, preset
+from dcseg.errors import InputError
+from dcseg.io.images import read_image
+from dcseg.jobs import RunInputs, evaluate_job, reclassify_job, recluster_job, run_job
+
+pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")
+
+OUTPUTS = (
+    "scene.ply",
+    "scene_labelled.ply",
+    "instances.json",
+    "labels.json",
+    "preview.png",
+    "run.json",
+    "state/gaussians.ply",
+    "state/affinity.npz",
+    "state/views.json",
+)
+
+
+def tiny_config() -> PipelineConfig:
+    """The fast preset shrunk to seconds on a 64x48 scene."""
+    cfg = preset("fast")
+    return replace(
+        cfg,
+        reconstruct=replace(cfg.reconstruct, iterations=150, holdout=0),
+        affinity=replace(cfg.affinity, iterations=150, rays=256),
+    )
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("pipeline") / "scene"
+    args = ["synth", str(out), "--frames", "6", "--size", "64x48", "--noise", "clean"]
+    assert main(args) == 0
+    return out
+
+
+def inputs_of(scene: Path) -> RunInputs:
+    return RunInputs(
+        capture=scene,
+        agnostic_masks=scene / "masks" / "agnostic",
+        semantic_masks=scene / "masks" / "semantic",
+        vocabulary=scene / "vocabulary.txt",
+        ground_truth=scene / "gt" / "points.ply",
+    )
+
+
+@pytest.fixture(scope="module")
+def run_dir(scene: Path) -> Path:
+    out = scene.parent / "run"
+    run_job(inputs_of(scene), tiny_config(), out)
+    return out
+
+
+def test_run_writes_every_output(run_dir: Path, scene: Path) -> None:
+    for name in OUTPUTS:
+        assert (run_dir / name).is_file(), name
+    record = json.loads((run_dir / "run.json").read_text())
+    assert set(record["seconds"]) >= {"read", "reconstruct", "train", "segment", "write"}
+    assert record["counts"]["clusters"] >= 2
+    stems = [p.stem for p in (scene / "rgb").iterdir()]
+    for stem in stems:
+        ids = read_image(run_dir / "masks" / f"{stem}.png")
+        assert ids.dtype == np.uint16 and ids.shape == (48, 64)
+    instances = json.loads((run_dir / "instances.json").read_text())["instances"]
+    assert instances and all(r["n_gaussians"] > 0 for r in instances)
+
+
+def test_run_quality_floor(run_dir: Path) -> None:
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    summary = metrics["summary"]
+    # Clean masks on a tiny scene: the 3D method must label a real share of the points.
+    assert summary["dcseg_projection"]["miou"] >= 0.25, summary
+    assert summary["naive_fusion"]["miou"] >= 0.5, summary
+    assert metrics["dcseg_projection"]["n_points"] > 1000
+
+
+def forbid_training(monkeypatch: pytest.MonkeyPatch) -> None:
+    def fail(*args: object, **kwargs: object) -> None:
+        raise AssertionError("trained again")
+
+    monkeypatch.setattr("dcseg.pipeline.train_affinity", fail)
+    monkeypatch.setattr("dcseg.reconstruct.fit_gaussians", fail)
+
+
+def test_recluster_reuses_training(
+    run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    forbid_training(monkeypatch)
+    out = tmp_path / "coarse"
+    record = recluster_job(run_dir, 1.0, out)
+    assert record["config"]["scale"] == 1.0 and record["parent"] == str(run_dir)
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    # The derived run can itself be re-clustered.
+    recluster_job(out, 0.2, tmp_path / "fine")
+
+
+def test_reclassify_with_other_masks(
+    run_dir: Path, scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    forbid_training(monkeypatch)
+    out = tmp_path / "gt-classes"
+    # Use the perfect per-frame ground truth as another segmenter's output.
+    reclassify_job(run_dir, scene / "gt" / "semantic", scene / "vocabulary.txt", out)
+    labels = json.loads((out / "labels.json").read_text())["labels"]
+    assert len(labels) == len((scene / "vocabulary.txt").read_text().split())
+    metrics = evaluate_job(out, scene / "gt" / "points.ply")
+    assert (out / "metrics.json").is_file()
+    assert metrics["summary"]["dcseg_projection"]["miou"] > 0.0
+
+
+def test_derived_run_must_not_replace_parent(run_dir: Path) -> None:
+    with pytest.raises(InputError, match="must not replace"):
+        recluster_job(run_dir, 0.5, run_dir)
+
+
+def test_masks_for_missing_frames_rejected(scene: Path, tmp_path: Path) -> None:
+    masks = tmp_path / "agnostic"
+    masks.mkdir()
+    source = next((scene / "masks" / "agnostic").iterdir())
+    (masks / "ghost.json").write_bytes(source.read_bytes())
+    bad = replace(inputs_of(scene), agnostic_masks=masks)
+    with pytest.raises(InputError, match="ghost"):
+        run_job(bad, tiny_config(), tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_run_refuses_non_empty_out(
+    scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "keep.txt").write_text("mine")
+    args = [
+        "run", str(scene), "--agnostic-masks", str(scene / "masks" / "agnostic"),
+        "--semantic-masks", str(scene / "masks" / "semantic"),
+        "--vocabulary", str(scene / "vocabulary.txt"), "--out", str(tmp_path),
+    ]  # fmt: skip
+    assert main(args) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert (tmp_path / "keep.txt").read_text() == "mine"

@@ -28,6 +28,18 @@ class CaptureOptionsIn(BaseModel):
     )
 
 
+class SegmentOptionsIn(BaseModel):
+    """Segmentation parameters (the library's ``PipelineConfig`` fields a job may set)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    scale: float = Field(default=0.8, ge=0.0, le=1.0, description="clustering scale in [0, 1]")
+    matcher: Literal["assignment", "matching"] = Field(
+        default="assignment", description="class replication (assignment) or one-to-one"
+    )
+    seed: int = Field(default=0, ge=0, description="seed of every random choice")
+
+
 class JobOptions(BaseModel):
     """Method parameters of one job (stored with it as ``config``)."""
 
@@ -39,6 +51,13 @@ class JobOptions(BaseModel):
     reconstruct: dict[str, Any] = Field(default_factory=dict)
     """Overrides of the reconstruction preset (fields of ``ReconstructConfig``, e.g.
     ``{"iterations": 500}``); unknown fields fail the job with a message naming them."""
+
+    affinity: dict[str, Any] = Field(default_factory=dict)
+    """Overrides of the affinity-training preset (fields of ``AffinityConfig``, e.g.
+    ``{"iterations": 500}``); unknown fields fail the job with a message naming them."""
+
+    segment: SegmentOptionsIn = Field(default_factory=SegmentOptionsIn)
+    """Clustering scale, matcher and seed of the segmentation stages."""
 
 
 class JobCreate(BaseModel):

@@ -74,6 +74,8 @@ class StageContext:
     progress: Callable[[float, str], None]
     """``progress(fraction_of_stage, message)``; raises to stop the stage (cancel, timeout)."""
     log: Callable[[str], None]
+    output_root: Path | None = None
+    """The job's output folder; finished stages' files are under ``output_root/<stage>/``."""
 
 
 class Stage(Protocol):
@@ -225,6 +227,7 @@ class _Runner:
                     settings=self.settings,
                     progress=functools.partial(self._progress, stage.name, index),
                     log=functools.partial(self._log, stage.name),
+                    output_root=self.paths.output,
                 )
                 outcome = stage.run(ctx, tmp)
             self._deadline = float("inf")

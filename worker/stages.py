@@ -116,23 +116,35 @@ def _finite(value: float) -> float | None:
 
 def reconstruct_config(config: dict[str, Any]) -> Any:
     """The preset named by the job, with its overrides; InputError naming a bad field."""
-    from dcseg.errors import InputError, Problem
     from dcseg.reconstruct import PRESETS
 
+    return _overridden(PRESETS, config, "reconstruct", "reconstruction")
+
+
+def affinity_config(config: dict[str, Any]) -> Any:
+    """The job's affinity-training config: its preset with ``options.affinity`` overrides."""
+    from dcseg.affinity.config import PRESETS
+
+    return _overridden(PRESETS, config, "affinity", "affinity-training")
+
+
+def _overridden(presets: dict[str, Any], config: dict[str, Any], key: str, what: str) -> Any:
+    from dcseg.errors import InputError, Problem
+
     preset = str(config.get("preset", "fast"))
-    if preset not in PRESETS:
-        known = ", ".join(sorted(PRESETS))
+    if preset not in presets:
+        known = ", ".join(sorted(presets))
         raise InputError([Problem("preset", f"unknown preset {preset!r} (known: {known})")])
-    overrides = dict(config.get("options", {}).get("reconstruct", {}))
-    fields = {f.name for f in dataclasses.fields(PRESETS[preset])}
+    overrides = dict(config.get("options", {}).get(key, {}))
+    fields = {f.name for f in dataclasses.fields(presets[preset])}
     unknown = sorted(set(overrides) - fields)
     if unknown:
-        reason = "not a reconstruction parameter"
-        raise InputError([Problem(f"options.reconstruct.{name}", reason) for name in unknown])
+        reason = f"not a {what} parameter"
+        raise InputError([Problem(f"options.{key}.{name}", reason) for name in unknown])
     try:
-        return dataclasses.replace(PRESETS[preset], **overrides)
+        return dataclasses.replace(presets[preset], **overrides)
     except (TypeError, ValueError) as error:
-        raise InputError([Problem("options.reconstruct", str(error))]) from None
+        raise InputError([Problem(f"options.{key}", str(error))]) from None
 
 
 def resolve_device(device: str) -> str:
@@ -144,6 +156,75 @@ def resolve_device(device: str) -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
+SEGMENT_WEIGHTS = {"cache": 0.1, "affinity": 0.75, "cluster": 0.05, "masks": 0.04, "assign": 0.03}
+"""Share of the segment stage's time spent in each of the library's sub-stages."""
+
+
+class SegmentStage:
+    """Stages 2-6 of DCSEG on the reconstructed scene: features, clusters, classes, exports."""
+
+    name = "segment"
+
+    def key(self, config: dict[str, Any]) -> dict[str, Any]:
+        options = config.get("options", {})
+        return {
+            "reconstruct": ReconstructStage().key(config),
+            "affinity": options.get("affinity", {}),
+            "segment": options.get("segment", {}),
+            "inputs": config.get("inputs"),
+        }
+
+    def run(self, ctx: StageContext, out: Path) -> StageOutcome:
+        from dcseg.jobs import RunInputs, run_job
+
+        layout = input_layout(ctx.input_root)
+        needed = ("agnostic_masks", "semantic_masks", "vocabulary")
+        missing = [name for name in needed if layout.get(name) is None]
+        if missing:
+            return StageOutcome("skipped", f"segment: the upload has no {', '.join(missing)}")
+        assert ctx.output_root is not None
+        scene = ctx.output_root / "reconstruct" / "scene.ply"
+        inputs = RunInputs(
+            capture=ctx.input_root,
+            agnostic_masks=layout["agnostic_masks"],
+            semantic_masks=layout["semantic_masks"],
+            vocabulary=layout["vocabulary"],
+            ground_truth=layout.get("ground_truth"),
+            scene=scene,
+            capture_options=capture_options(ctx.config),
+        )
+        record = run_job(inputs, pipeline_config(ctx.config), out, _segment_progress(ctx))
+        counts = record["counts"]
+        message = f"segment: {counts['clusters']} instances, {counts['labelled_clusters']} labelled"
+        return StageOutcome("done", message)
+
+
+def _segment_progress(ctx: StageContext) -> Any:
+    order = list(SEGMENT_WEIGHTS)
+
+    def report(stage: str, fraction: float, message: str) -> None:
+        if stage not in SEGMENT_WEIGHTS:
+            return
+        done = sum(SEGMENT_WEIGHTS[s] for s in order[: order.index(stage)])
+        ctx.progress(done + SEGMENT_WEIGHTS[stage] * fraction, f"{stage}: {message}")
+
+    return report
+
+
+def pipeline_config(config: dict[str, Any]) -> Any:
+    """The job's ``dcseg.config.PipelineConfig``: its preset, seed, scale and matcher."""
+    from dcseg.config import preset
+
+    options = config.get("options", {}).get("segment", {})
+    base = preset(str(config.get("preset", "fast")))
+    cfg = dataclasses.replace(
+        base, reconstruct=reconstruct_config(config), affinity=affinity_config(config)
+    )
+    cfg = cfg.seeded(int(options.get("seed", 0)))
+    assign = dataclasses.replace(cfg.assign, mode=options.get("matcher", "assignment"))
+    return dataclasses.replace(cfg, scale=float(options.get("scale", 0.8)), assign=assign)
+
+
 def default_stages() -> list[Stage]:
-    """The stages that exist today, in order."""
-    return [ValidateStage(), ReconstructStage()]
+    """The stages, in order."""
+    return [ValidateStage(), ReconstructStage(), SegmentStage()]

@@ -6,8 +6,6 @@ import json
 import subprocess
 import sys
 
-import pytest
-
 from service.main import app
 from service.openapi import DEFAULT_PATH, render
 from tests.service.conftest import AUTH_A, assert_problem, state_of
@@ -33,11 +31,6 @@ def test_service_and_worker_contract_import_without_torch():
     assert result.returncode == 0, result.stdout + result.stderr
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="dcseg.config imports the stage configs, whose package __init__ imports torch, and "
-    "dcseg.io.validate imports dcseg.config: validating an upload loads torch in the API",
-)
 def test_upload_validation_does_not_load_torch():
     code = (
         "import sys, service.uploads, dcseg.io.validate, dcseg.io.archive; "

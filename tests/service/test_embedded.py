@@ -32,7 +32,10 @@ from tests.service.conftest import (
 )
 
 REPO = Path(__file__).resolve().parents[2]
-TINY = {"reconstruct": {"iterations": 3, "holdout": 0}}
+TINY = {
+    "reconstruct": {"iterations": 3, "holdout": 0},
+    "affinity": {"iterations": 5, "rays": 64},
+}
 
 
 def _free_port() -> int:
@@ -100,8 +103,23 @@ def test_one_command_runs_a_job_end_to_end(serve, scene, tmp_path, capsys):
     assert main(["download", job_id, str(tmp_path / "out"), *connection]) == 0
     files = capsys.readouterr().out.split()
     names = sorted(Path(f).relative_to(tmp_path / "out").as_posix() for f in files)
-    assert names == ["reconstruct/metrics.json", "reconstruct/scene.ply", "validate/report.json"]
+    expected = {
+        "validate/report.json",
+        "reconstruct/metrics.json",
+        "reconstruct/scene.ply",
+        "segment/scene_labelled.ply",
+        "segment/instances.json",
+        "segment/labels.json",
+        "segment/metrics.json",
+        "segment/preview.png",
+        "segment/run.json",
+        "segment/state/affinity.npz",
+    }
+    assert expected <= set(names), names
+    assert any(n.startswith("segment/masks/") for n in names)
     assert (tmp_path / "out" / "reconstruct" / "scene.ply").read_bytes().startswith(b"ply")
+    instances = json.loads((tmp_path / "out" / "segment" / "instances.json").read_text())
+    assert instances["instances"], "the pipeline found no instance"
     with Client(serve, KEY_A) as client:
         upload_id = client.status(job_id)["upload_id"]
         bad = client.submit(upload_id, options={"reconstruct": {"no_such_knob": 1}})
@@ -136,7 +154,10 @@ def test_thread_worker_picks_up_queued_jobs(tmp_path, scene_tar):
         upload = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR}).json()
         body = {
             "upload_id": upload["id"],
-            "options": {"reconstruct": {"iterations": 1, "holdout": 0}},
+            "options": {
+                "reconstruct": {"iterations": 1, "holdout": 0},
+                "affinity": {"iterations": 5, "rays": 64},
+            },
         }
         job_id = client.post("/v1/jobs", json=body, headers=AUTH_A).json()["id"]
 

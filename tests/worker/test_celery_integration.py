@@ -137,7 +137,10 @@ def test_job_survives_a_lost_queue_and_runs_in_a_worker_process(
             upload = client.post("/v1/uploads", content=tar_bytes(scene), headers={**AUTH_A, **TAR})
             body = {
                 "upload_id": upload.json()["id"],
-                "options": {"reconstruct": {"iterations": 2, "holdout": 0}},
+                "options": {
+                    "reconstruct": {"iterations": 2, "holdout": 0},
+                    "affinity": {"iterations": 5, "rays": 64},
+                },
             }
             job_id = client.post("/v1/jobs", json=body, headers=AUTH_A).json()["id"]
         messages = [json.loads(m) for m in broker.lrange(queue, 0, -1)]
@@ -181,7 +184,10 @@ def test_killed_worker_job_resumes_after_last_finished_stage(
         upload = client.post("/v1/uploads", content=tar_bytes(scene), headers={**AUTH_A, **TAR})
         body = {
             "upload_id": upload.json()["id"],
-            "options": {"reconstruct": {"iterations": 40, "holdout": 0}},
+            "options": {
+                "reconstruct": {"iterations": 40, "holdout": 0},
+                "affinity": {"iterations": 5, "rays": 64},
+            },
         }
         job_id = client.post("/v1/jobs", json=body, headers=AUTH_A).json()["id"]
 

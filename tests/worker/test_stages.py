@@ -24,7 +24,13 @@ def _use_scene(settings: Any, scene: Any) -> None:
 
 def test_validate_and_reconstruct_on_a_tiny_capture(store, settings, scene):
     _use_scene(settings, scene)
-    job_id = add_job(store, options={"reconstruct": {"iterations": 2, "holdout": 0}})
+    job_id = add_job(
+        store,
+        options={
+            "reconstruct": {"iterations": 2, "holdout": 0},
+            "affinity": {"iterations": 5, "rays": 64},
+        },
+    )
     settings = settings.model_copy(update={"device": "cpu"})
     assert execute_job(job_id, store, settings, stages=default_stages()) == "succeeded"
     output = JobPaths(settings.storage_dir, job_id).output

@@ -35,13 +35,7 @@ def bench_noise(noise: str, args: argparse.Namespace, work: Path) -> dict[str, A
     width, height = args.size
     synth = SynthConfig(seed=args.seed, frames=args.frames, width=width, height=height, noise=noise)
     write_scene(generate_scene(synth), scene)
-    inputs = RunInputs(
-        capture=scene,
-        agnostic_masks=scene / "masks" / "agnostic",
-        semantic_masks=scene / "masks" / "semantic",
-        vocabulary=scene / "vocabulary.txt",
-        ground_truth=scene / "gt" / "points.ply",
-    )
+    inputs = RunInputs.from_bundle(scene)
     run = work / noise / "run"
     start = time.perf_counter()
     record = run_job(inputs, preset("fast").seeded(args.seed), run)

@@ -21,6 +21,7 @@ from dcseg import __version__
 from dcseg.config import CaptureOptions, PipelineConfig
 from dcseg.errors import InputError
 from dcseg.gaussians import Gaussians
+from dcseg.io.bundle import BUNDLE_LAYOUT, bundle_paths
 from dcseg.io.captures import read_capture
 from dcseg.io.ground_truth import read_ground_truth
 from dcseg.io.masks import read_agnostic_masks
@@ -60,6 +61,38 @@ class RunInputs:
     ground_truth: Path | None = None
     scene: Path | None = None
     capture_options: CaptureOptions = field(default_factory=CaptureOptions)
+
+    @classmethod
+    def from_bundle(
+        cls,
+        root: Path,
+        *,
+        scene: Path | None = None,
+        capture_options: CaptureOptions | None = None,
+    ) -> RunInputs:
+        """The inputs of a bundle folder (:mod:`dcseg.io.bundle`); InputError names what is
+        missing (masks and vocabulary are required, ground truth is optional)."""
+        found = bundle_paths(root)
+        required = ("agnostic_masks", "semantic_masks", "vocabulary")
+        missing = [name for name in required if found[name] is None]
+        if missing:
+            where = ", ".join(f"{n} ({' or '.join(BUNDLE_LAYOUT[n])})" for n in missing)
+            raise InputError.single(str(root), f"the bundle has no {where}")
+        return cls(
+            capture=root,
+            agnostic_masks=_present(found["agnostic_masks"]),
+            semantic_masks=_present(found["semantic_masks"]),
+            vocabulary=_present(found["vocabulary"]),
+            ground_truth=found["ground_truth"],
+            scene=scene,
+            capture_options=capture_options or CaptureOptions(),
+        )
+
+
+def _present(path: Path | None) -> Path:
+    if path is None:  # pragma: no cover - checked by the caller
+        raise ValueError("missing bundle input")
+    return path
 
 
 class _Clock:

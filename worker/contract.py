@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dcseg.io.bundle import BUNDLE_LAYOUT, bundle_paths
+
 TASK_RUN_JOB = "dcseg.run_job"
 """Celery task name of the pipeline; the API enqueues by this name (``send_task``)."""
 
@@ -99,22 +101,13 @@ def celery_config(
     }
 
 
-INPUT_LAYOUT: dict[str, tuple[str, ...]] = {
-    "agnostic_masks": ("masks/agnostic",),
-    "semantic_masks": ("masks/semantic",),
-    "vocabulary": ("vocabulary.txt", "vocabulary.json"),
-    "ground_truth": ("gt/points.ply",),
-}
-"""Optional inputs inside an upload, by the names they have under the archive root (which
-holds the capture itself in any layout dcseg reads)."""
+INPUT_LAYOUT = BUNDLE_LAYOUT
+"""Optional inputs inside an upload (see :mod:`dcseg.io.bundle`)."""
 
 
 def input_layout(root: Path) -> dict[str, Any]:
     """The keyword arguments of ``dcseg.io.validate.InputPaths`` for an extracted upload."""
-    found: dict[str, Any] = {"capture": root}
-    for name, candidates in INPUT_LAYOUT.items():
-        found[name] = next((root / c for c in candidates if (root / c).exists()), None)
-    return found
+    return dict(bundle_paths(root))
 
 
 def _tree_digest(paths: list[Path], root: Path) -> str:

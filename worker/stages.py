@@ -175,24 +175,17 @@ class SegmentStage:
         }
 
     def run(self, ctx: StageContext, out: Path) -> StageOutcome:
+        from dcseg.errors import InputError
         from dcseg.jobs import RunInputs, run_job
 
-        layout = input_layout(ctx.input_root)
-        needed = ("agnostic_masks", "semantic_masks", "vocabulary")
-        missing = [name for name in needed if layout.get(name) is None]
-        if missing:
-            return StageOutcome("skipped", f"segment: the upload has no {', '.join(missing)}")
         assert ctx.output_root is not None
         scene = ctx.output_root / "reconstruct" / "scene.ply"
-        inputs = RunInputs(
-            capture=ctx.input_root,
-            agnostic_masks=layout["agnostic_masks"],
-            semantic_masks=layout["semantic_masks"],
-            vocabulary=layout["vocabulary"],
-            ground_truth=layout.get("ground_truth"),
-            scene=scene,
-            capture_options=capture_options(ctx.config),
-        )
+        try:
+            inputs = RunInputs.from_bundle(
+                ctx.input_root, scene=scene, capture_options=capture_options(ctx.config)
+            )
+        except InputError as error:  # a capture-only upload: reconstruct, nothing more
+            return StageOutcome("skipped", f"segment: {error.problems[0].reason}")
         record = run_job(inputs, pipeline_config(ctx.config), out, _segment_progress(ctx))
         counts = record["counts"]
         message = f"segment: {counts['clusters']} instances, {counts['labelled_clusters']} labelled"

@@ -40,13 +40,7 @@ def run(args: argparse.Namespace) -> int:
         shutil.rmtree(scene_dir)
     log.info("synthesising %d views into %s", args.frames, scene_dir)
     write_scene(generate_scene(SynthConfig(seed=args.seed, frames=args.frames)), scene_dir)
-    inputs = RunInputs(
-        capture=scene_dir,
-        agnostic_masks=scene_dir / "masks" / "agnostic",
-        semantic_masks=scene_dir / "masks" / "semantic",
-        vocabulary=scene_dir / "vocabulary.txt",
-        ground_truth=scene_dir / "gt" / "points.ply",
-    )
+    inputs = RunInputs.from_bundle(scene_dir)
     with StageBars(enabled=not args.quiet) as bars:
         record = run_job(inputs, preset(args.preset).seeded(args.seed), run_dir, bars)
     sys.stdout.write(json.dumps({"out": str(run_dir), **_summary(record)}, indent=1) + "\n")

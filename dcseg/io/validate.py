@@ -14,6 +14,7 @@ import numpy as np
 
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
+from dcseg.io.bundle import bundle_paths
 from dcseg.io.captures import read_capture
 from dcseg.io.ground_truth import read_ground_truth
 from dcseg.io.masks import read_agnostic_masks
@@ -35,6 +36,18 @@ class InputPaths:
     semantic_masks: Path | None = None
     vocabulary: Path | None = None
     ground_truth: Path | None = None
+
+    @classmethod
+    def in_bundle(cls, root: Path) -> InputPaths:
+        """The inputs of a bundle folder (:data:`dcseg.io.bundle.BUNDLE_LAYOUT`)."""
+        found = bundle_paths(root)
+        return cls(
+            capture=root,
+            agnostic_masks=found["agnostic_masks"],
+            semantic_masks=found["semantic_masks"],
+            vocabulary=found["vocabulary"],
+            ground_truth=found["ground_truth"],
+        )
 
 
 @dataclass(frozen=True)

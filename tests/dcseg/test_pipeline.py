@@ -49,13 +49,9 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def inputs_of(scene: Path) -> RunInputs:
-    return RunInputs(
-        capture=scene,
-        agnostic_masks=scene / "masks" / "agnostic",
-        semantic_masks=scene / "masks" / "semantic",
-        vocabulary=scene / "vocabulary.txt",
-        ground_truth=scene / "gt" / "points.ply",
-    )
+    inputs = RunInputs.from_bundle(scene)
+    assert inputs.ground_truth == scene / "gt" / "points.ply"
+    return inputs
 
 
 @pytest.fixture(scope="module")
@@ -151,3 +147,9 @@ def test_cli_run_refuses_non_empty_out(
     assert main(args) == 2
     assert "--overwrite" in capsys.readouterr().err
     assert (tmp_path / "keep.txt").read_text() == "mine"
+
+
+def test_bundle_without_masks_is_named(tmp_path: Path) -> None:
+    (tmp_path / "vocabulary.txt").write_text("wall\n")
+    with pytest.raises(InputError, match="agnostic_masks .*masks/agnostic.*semantic_masks"):
+        RunInputs.from_bundle(tmp_path)

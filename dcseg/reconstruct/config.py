@@ -1,0 +1,164 @@
+"""Parameters of stage 1 (reconstruction): a stdlib dataclass, never importing torch.
+
+The defaults are the ``paper`` values (close to 3D Gaussian Splatting); :data:`PRESETS` holds the
+named variants. Learning rates follow 3DGS; the position rate is multiplied by the scene extent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """How Gaussians are initialised from depth and optimised against the training views."""
+
+    iterations: int = 30_000
+    """Optimisation steps; one random training view per step."""
+
+    sh_degree: int = 3
+    """Largest spherical-harmonic degree of the colour (0-3)."""
+
+    sh_degree_interval: int = 1000
+    """Raise the active SH degree by one every this many steps (3DGS schedule)."""
+
+    holdout: int = 8
+    """Every ``holdout``-th frame (index 0, k, 2k, ...) is held out for evaluation; 0 = none."""
+
+    seed: int = 0
+    """Seed of every random choice (view order, pixel subsampling, split samples)."""
+
+    train_downscale: int = 1
+    """Train on views downscaled by this integer factor (evaluation is at full resolution)."""
+
+    full_res_from: int | None = None
+    """From this step on, train on full-resolution views (coarse to fine); None = never."""
+
+    backend: str | None = None
+    """Renderer backend (``"cpu"``, ``"reference"``, ...); None = the renderer's default."""
+
+    # --- initialisation from depth ---
+    init_pixel_stride: int = 2
+    """Back-project every ``stride``-th pixel along both axes of every training frame."""
+
+    voxel_size: float | None = None
+    """Voxel edge (metres) of the downsampled init cloud; None = ``extent * voxel_fraction``."""
+
+    voxel_fraction: float = 1.0 / 200.0
+    """Automatic voxel size as a fraction of the scene extent."""
+
+    voxel_min: float = 0.005
+    """Lower clip of the automatic voxel size (metres)."""
+
+    voxel_max: float = 0.05
+    """Upper clip of the automatic voxel size (metres)."""
+
+    max_init_points: int = 200_000
+    """Cap on initial Gaussians; the voxel size grows until the cloud fits."""
+
+    init_opacity: float = 0.3
+    """Opacity of every initial Gaussian."""
+
+    # --- loss ---
+    ssim_lambda: float = 0.2
+    """Weight of ``1 - SSIM`` in the RGB loss ``(1 - l) * L1 + l * (1 - SSIM)``."""
+
+    depth_weight: float = 0.5
+    """Weight of the L1 loss on expected depth at valid depth pixels (metres)."""
+
+    # --- optimiser (Adam, eps 1e-15) ---
+    means_lr_init: float = 1.6e-4
+    """Initial position learning rate, times the scene extent."""
+
+    means_lr_final: float = 1.6e-6
+    """Final position learning rate, times the scene extent (log-linear decay)."""
+
+    sh_dc_lr: float = 2.5e-3
+    """Learning rate of the SH DC coefficients."""
+
+    sh_rest_lr: float = 1.25e-4
+    """Learning rate of the higher-order SH coefficients."""
+
+    opacity_lr: float = 0.05
+    """Learning rate of the opacity logits."""
+
+    scales_lr: float = 5e-3
+    """Learning rate of the log scales."""
+
+    quats_lr: float = 1e-3
+    """Learning rate of the quaternions."""
+
+    # --- densification and pruning ---
+    densify_from: int = 500
+    """First step at which densification runs."""
+
+    densify_until: int = 15_000
+    """Last step at which densification runs."""
+
+    densify_every: int = 100
+    """Densify and prune every this many steps."""
+
+    grad_threshold: float = 2e-4
+    """Mean view-space (NDC) position-gradient norm above which a Gaussian is densified."""
+
+    clone_scale_fraction: float = 0.01
+    """Gaussians whose largest scale is at most this times the extent are cloned, else split."""
+
+    prune_opacity: float = 0.005
+    """Gaussians with a lower opacity are pruned."""
+
+    prune_scale_fraction: float = 0.1
+    """Gaussians whose largest world scale exceeds this times the extent are pruned."""
+
+    opacity_reset_every: int = 3000
+    """Reset opacities to at most 0.01 every this many steps during densification; 0 = never."""
+
+    max_gaussians: int = 1_000_000
+    """Densification stops adding Gaussians beyond this count."""
+
+    def __post_init__(self) -> None:
+        if self.iterations < 0:
+            raise ValueError(f"iterations must be >= 0, got {self.iterations}")
+        if not 0 <= self.sh_degree <= 3:
+            raise ValueError(f"sh_degree must be between 0 and 3, got {self.sh_degree}")
+        if self.holdout < 0 or self.holdout == 1:
+            raise ValueError(f"holdout must be 0 or >= 2, got {self.holdout}")
+        for name in ("sh_degree_interval", "train_downscale", "init_pixel_stride"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.full_res_from is not None and self.full_res_from < 0:
+            raise ValueError(f"full_res_from must be >= 0, got {self.full_res_from}")
+        if self.densify_every < 1:
+            raise ValueError(f"densify_every must be >= 1, got {self.densify_every}")
+        if self.voxel_size is not None and self.voxel_size <= 0:
+            raise ValueError(f"voxel_size must be > 0, got {self.voxel_size}")
+        if not 0.0 < self.init_opacity < 1.0:
+            raise ValueError(f"init_opacity must be in (0, 1), got {self.init_opacity}")
+        if not 0.0 <= self.ssim_lambda <= 1.0:
+            raise ValueError(f"ssim_lambda must be in [0, 1], got {self.ssim_lambda}")
+        if self.max_init_points < 1:
+            raise ValueError(f"max_init_points must be >= 1, got {self.max_init_points}")
+
+
+PAPER = ReconstructConfig()
+"""Close to 3DGS: 30k steps, SH degree 3, full resolution."""
+
+FAST = replace(
+    PAPER,
+    iterations=1500,
+    sh_degree=0,
+    train_downscale=2,
+    full_res_from=900,
+    densify_from=300,
+    densify_until=1200,
+    densify_every=100,
+    opacity_reset_every=0,
+    means_lr_init=1.6e-4,
+    means_lr_final=1.6e-5,
+    max_init_points=60_000,
+    max_gaussians=120_000,
+)
+"""Minutes on a CPU: 1500 steps (half resolution until step 900, then full), SH degree 0."""
+
+PRESETS: dict[str, ReconstructConfig] = {"fast": FAST, "paper": PAPER}
+"""Named configurations, selectable with ``dcseg reconstruct --preset``."""

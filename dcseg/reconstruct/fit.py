@@ -1,0 +1,221 @@
+"""The optimisation loop: Adam on Gaussian parameters against RGB and depth of training views."""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from dcseg.gaussians import SH_C0, Gaussians
+from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.reconstruct.densify import (
+    GradStats,
+    Params,
+    densify_and_prune,
+    reset_opacity,
+    view_space_grad_norm,
+)
+from dcseg.reconstruct.losses import depth_l1, rgb_loss
+from dcseg.reconstruct.sh import eval_sh
+from dcseg.reconstruct.views import View
+from dcseg.render import Camera, RenderOutput, render
+
+log = logging.getLogger(__name__)
+
+ProgressCallback = Callable[[int, int, float], None]
+"""``on_progress(iteration, total, loss)``, called after every step (iteration counts from 1)."""
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What :func:`optimise` returns.
+
+    Attributes:
+        gaussians: the optimised Gaussians (detached).
+        losses: the training loss of every step.
+    """
+
+    gaussians: Gaussians
+    losses: tuple[float, ...]
+
+
+def to_params(gaussians: Gaussians) -> Params:
+    """Leaf tensors (requiring grad) for the optimiser; ``sh_rest`` only for degree > 0."""
+    g = gaussians.detach()
+    params = {
+        "means": g.means,
+        "quats": g.quats,
+        "log_scales": g.log_scales,
+        "opacity_logits": g.opacity_logits,
+        "sh_dc": g.sh[:, :1],
+    }
+    if g.sh.shape[1] > 1:
+        params["sh_rest"] = g.sh[:, 1:]
+    return {name: t.clone().contiguous().requires_grad_(True) for name, t in params.items()}
+
+
+def from_params(params: Params) -> Gaussians:
+    """The Gaussians of the current leaves (differentiable)."""
+    sh = params["sh_dc"]
+    if "sh_rest" in params:
+        sh = torch.cat([sh, params["sh_rest"]], dim=1)
+    return Gaussians(
+        params["means"], params["quats"], params["log_scales"], params["opacity_logits"], sh
+    )
+
+
+def make_optimizer(params: Params, cfg: ReconstructConfig, extent: float) -> torch.optim.Adam:
+    """Adam (eps 1e-15) with one group per parameter and the 3DGS learning rates."""
+    rates = {
+        "means": cfg.means_lr_init * extent,
+        "quats": cfg.quats_lr,
+        "log_scales": cfg.scales_lr,
+        "opacity_logits": cfg.opacity_lr,
+        "sh_dc": cfg.sh_dc_lr,
+        "sh_rest": cfg.sh_rest_lr,
+    }
+    groups = [{"params": [t], "lr": rates[name], "name": name} for name, t in params.items()]
+    return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+
+
+def means_lr(step: int, cfg: ReconstructConfig, extent: float) -> float:
+    """Log-linear decay from ``means_lr_init`` to ``means_lr_final`` (times extent)."""
+    t = min(max(step / max(cfg.iterations, 1), 0.0), 1.0)
+    log_lr = (1 - t) * math.log(cfg.means_lr_init) + t * math.log(cfg.means_lr_final)
+    return math.exp(log_lr) * extent
+
+
+def view_colours(gaussians: Gaussians, camera: Camera, degree: int) -> Tensor:
+    """``[N, 3]`` colours seen from ``camera`` with SH up to ``degree`` (clamped at 0)."""
+    if degree == 0 or gaussians.sh.shape[1] == 1:
+        return (0.5 + SH_C0 * gaussians.sh[:, 0]).clamp_min(0.0)
+    dirs = gaussians.means - camera.c2w[:3, 3].to(gaussians.means.dtype)
+    return eval_sh(gaussians.sh, dirs, degree)
+
+
+def render_view(
+    gaussians: Gaussians, camera: Camera, degree: int, backend: str | None
+) -> RenderOutput:
+    """Render colour, alpha and expected depth of ``camera`` (black background)."""
+    colours = view_colours(gaussians, camera, degree)
+    return render(gaussians, colours, camera, backend=backend)
+
+
+def step_loss(out: RenderOutput, view: View, cfg: ReconstructConfig) -> Tensor:
+    """``(1 - l) * L1 + l * (1 - SSIM)`` on RGB plus the weighted depth L1 on valid pixels."""
+    loss = rgb_loss(out.values, view.rgb, cfg.ssim_lambda)
+    if cfg.depth_weight > 0:
+        loss = loss + cfg.depth_weight * depth_l1(out.depth, view.depth)
+    return loss
+
+
+def _view_order(n_views: int, iterations: int, generator: torch.Generator) -> list[int]:
+    """Random view indices, a fresh permutation per pass over the views (as 3DGS)."""
+    order: list[int] = []
+    while len(order) < iterations:
+        order.extend(torch.randperm(n_views, generator=generator).tolist())
+    return order[:iterations]
+
+
+@dataclass
+class _Trainer:
+    """Mutable training state; one :meth:`step` per iteration."""
+
+    params: Params
+    optimizer: torch.optim.Adam
+    stats: GradStats
+    cfg: ReconstructConfig
+    extent: float
+    generator: torch.Generator
+
+    def step(self, it: int, view: View) -> float:
+        cfg = self.cfg
+        for group in self.optimizer.param_groups:
+            if group["name"] == "means":
+                group["lr"] = means_lr(it, cfg, self.extent)
+        degree = min(cfg.sh_degree, it // cfg.sh_degree_interval)
+        out = render_view(from_params(self.params), view.camera, degree, cfg.backend)
+        loss = step_loss(out, view, cfg)
+        torch.autograd.backward(loss)
+        if it < cfg.densify_until:
+            self._accumulate(view.camera)
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+        self._control(it + 1)
+        return float(loss.detach())
+
+    def _accumulate(self, camera: Camera) -> None:
+        means = self.params["means"]
+        if means.grad is None:
+            return
+        with torch.no_grad():
+            norms, visible = view_space_grad_norm(
+                means.grad, means, camera.c2w, camera.K, camera.width, camera.height
+            )
+            self.stats.add(norms, visible)
+
+    def _control(self, done: int) -> None:
+        cfg = self.cfg
+        if cfg.densify_from <= done <= cfg.densify_until and done % cfg.densify_every == 0:
+            before = self.params["means"].shape[0]
+            self.params = densify_and_prune(
+                self.optimizer, self.params, self.stats, cfg, self.extent, self.generator
+            )
+            n = self.params["means"].shape[0]
+            log.debug("step %d: densify %d -> %d Gaussians", done, before, n)
+            self.stats = GradStats.zeros(n, self.params["means"].device)
+        reset = cfg.opacity_reset_every
+        if reset and done <= cfg.densify_until and done % reset == 0:
+            reset_opacity(self.optimizer, self.params)
+
+
+def optimise(
+    init: Gaussians,
+    views: Sequence[View],
+    cfg: ReconstructConfig,
+    extent: float,
+    *,
+    fine_views: Sequence[View] | None = None,
+    on_progress: ProgressCallback | None = None,
+) -> FitResult:
+    """Optimise ``init`` against ``views`` for ``cfg.iterations`` steps.
+
+    Args:
+        init: the starting Gaussians (their SH degree fixes the coefficient count).
+        views: the training views.
+        cfg: the reconstruction parameters.
+        extent: the scene radius that scales position learning rates and density control.
+        fine_views: the same views at full resolution, used from step ``cfg.full_res_from``.
+        on_progress: called as ``on_progress(iteration, total, loss)`` after every step.
+
+    Returns:
+        The optimised Gaussians and the loss of every step.
+    """
+    if not views:
+        raise ValueError("no training views")
+    if fine_views is not None and len(fine_views) != len(views):
+        raise ValueError("fine_views must hold the same views as views")
+    switch = (
+        cfg.iterations if cfg.full_res_from is None or fine_views is None else cfg.full_res_from
+    )
+    generator = torch.Generator().manual_seed(cfg.seed)
+    params = to_params(init)
+    trainer = _Trainer(
+        params=params,
+        optimizer=make_optimizer(params, cfg, extent),
+        stats=GradStats.zeros(len(init), init.device),
+        cfg=cfg,
+        extent=extent,
+        generator=generator,
+    )
+    losses: list[float] = []
+    for it, index in enumerate(_view_order(len(views), cfg.iterations, generator)):
+        view = views[index] if it < switch or fine_views is None else fine_views[index]
+        losses.append(trainer.step(it, view))
+        if on_progress is not None:
+            on_progress(it + 1, cfg.iterations, losses[-1])
+    return FitResult(from_params(trainer.params).detach(), tuple(losses))

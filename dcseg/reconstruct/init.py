@@ -1,0 +1,164 @@
+"""Initial Gaussians from posed depth: back-project, voxel-downsample, size from neighbours."""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from dcseg.gaussians import SH_C0, Gaussians
+from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.types import Capture, Frame
+
+log = logging.getLogger(__name__)
+
+Points = NDArray[np.float64]
+
+
+def backproject(frame: Frame, stride: int = 1) -> tuple[Points, NDArray[np.float64]]:
+    """World points and RGB in [0, 1] of a frame's valid depth pixels on a ``stride`` grid.
+
+    Returns:
+        ``([M, 3] points, [M, 3] colours)``, float64.
+    """
+    depth = frame.depth[::stride, ::stride].astype(np.float64)
+    rows, cols = np.nonzero(depth > 0)
+    z = depth[rows, cols]
+    u, v = cols * stride, rows * stride
+    k = frame.intrinsics
+    cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+    world = cam @ frame.c2w[:3, :3].T + frame.c2w[:3, 3]
+    colours = frame.rgb[v, u].astype(np.float64) / 255.0
+    return world, colours
+
+
+def scene_extent(frames: Sequence[Frame], stride: int = 4) -> float:
+    """A scene radius (metres) that scales learning rates, voxel size and pruning.
+
+    ``1.1 x`` the larger of the cameras' spread around their mean (as in 3DGS) and the 95th
+    percentile distance of the observed surface points from that mean, so that captures taken
+    from one spot (small camera spread) still get a sensible size.
+    """
+    centres = np.stack([f.c2w[:3, 3] for f in frames])
+    centre = centres.mean(axis=0)
+    camera_radius = float(np.linalg.norm(centres - centre, axis=1).max())
+    points = np.concatenate(
+        [backproject(f, stride)[0] for f in frames[:: max(1, len(frames) // 10)]]
+    )
+    surface_radius = 0.0
+    if len(points):
+        surface_radius = float(np.percentile(np.linalg.norm(points - centre, axis=1), 95))
+    return 1.1 * max(camera_radius, surface_radius, 1e-3)
+
+
+def voxel_downsample(
+    points: Points, colours: NDArray[np.float64], voxel: float
+) -> tuple[Points, NDArray[np.float64]]:
+    """Average the points and colours falling into each voxel of edge ``voxel``."""
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    m = len(counts)
+    out_p = np.stack([np.bincount(inverse, points[:, i], m) for i in range(3)], axis=1)
+    out_c = np.stack([np.bincount(inverse, colours[:, i], m) for i in range(3)], axis=1)
+    return out_p / counts[:, None], out_c / counts[:, None]
+
+
+def auto_voxel_size(extent: float, cfg: ReconstructConfig) -> float:
+    """The configured voxel size, or ``extent * voxel_fraction`` clipped to its limits."""
+    if cfg.voxel_size is not None:
+        return cfg.voxel_size
+    return float(np.clip(extent * cfg.voxel_fraction, cfg.voxel_min, cfg.voxel_max))
+
+
+def point_cloud(
+    frames: Sequence[Frame], cfg: ReconstructConfig, extent: float
+) -> tuple[Points, NDArray[np.float64]]:
+    """The voxel-downsampled coloured cloud of all frames, at most ``cfg.max_init_points``."""
+    parts = [backproject(f, cfg.init_pixel_stride) for f in frames]
+    points = np.concatenate([p for p, _ in parts])
+    colours = np.concatenate([c for _, c in parts])
+    if len(points) == 0:
+        raise ValueError("no valid depth in the training frames: cannot initialise Gaussians")
+    voxel = auto_voxel_size(extent, cfg)
+    cloud = voxel_downsample(points, colours, voxel)
+    while len(cloud[0]) > cfg.max_init_points:
+        voxel *= math.sqrt(len(cloud[0]) / cfg.max_init_points) * 1.05
+        cloud = voxel_downsample(points, colours, voxel)
+    log.info("init: %d depth points -> %d voxels of %.4f m", len(points), len(cloud[0]), voxel)
+    return cloud
+
+
+def neighbour_log_scales(points: Points, k: int = 3) -> NDArray[np.float64]:
+    """Log of the mean distance of each point to its ``k`` nearest neighbours (``[M]``)."""
+    if len(points) < 2:
+        return np.full(len(points), math.log(1e-2))
+    kk = min(k, len(points) - 1)
+    dists, _ = cKDTree(points).query(points, k=kk + 1)
+    mean = np.asarray(dists)[:, 1:].mean(axis=1)
+    out: NDArray[np.float64] = np.log(np.maximum(mean, 1e-7))
+    return out
+
+
+def gaussians_from_points(
+    points: Points,
+    colours: NDArray[np.float64],
+    cfg: ReconstructConfig,
+    device: torch.device | str = "cpu",
+) -> Gaussians:
+    """Isotropic Gaussians at ``points`` with colour ``colours`` (SH DC, higher orders zero)."""
+    n = len(points)
+    log_scale = np.repeat(neighbour_log_scales(points)[:, None], 3, axis=1)
+    quats = np.zeros((n, 4))
+    quats[:, 0] = 1.0
+    sh = np.zeros((n, (cfg.sh_degree + 1) ** 2, 3))
+    sh[:, 0] = (colours - 0.5) / SH_C0
+    logit = math.log(cfg.init_opacity / (1.0 - cfg.init_opacity))
+
+    def tensor(a: NDArray[np.float64]) -> torch.Tensor:
+        return torch.as_tensor(a, dtype=torch.float32, device=device)
+
+    return Gaussians(
+        means=tensor(points),
+        quats=tensor(quats),
+        log_scales=tensor(log_scale),
+        opacity_logits=torch.full((n,), logit, dtype=torch.float32, device=device),
+        sh=tensor(sh),
+    )
+
+
+def init_from_frames(
+    frames: Sequence[Frame],
+    cfg: ReconstructConfig,
+    *,
+    extent: float | None = None,
+    device: torch.device | str = "cpu",
+) -> Gaussians:
+    """Initial Gaussians from the valid depth of ``frames`` (see :func:`init_from_capture`)."""
+    extent = scene_extent(frames) if extent is None else extent
+    points, colours = point_cloud(frames, cfg, extent)
+    return gaussians_from_points(points, colours, cfg, device)
+
+
+def init_from_capture(
+    capture: Capture, cfg: ReconstructConfig, *, device: torch.device | str = "cpu"
+) -> Gaussians:
+    """Initial Gaussians from every frame's depth.
+
+    Back-projects every ``cfg.init_pixel_stride``-th pixel with valid depth, averages the points
+    per voxel (``cfg.voxel_size`` or ``extent * cfg.voxel_fraction`` clipped to
+    ``[voxel_min, voxel_max]``, enlarged until at most ``cfg.max_init_points`` remain), and
+    makes isotropic Gaussians sized by the mean distance to the 3 nearest neighbours, identity
+    rotation, opacity ``cfg.init_opacity`` and SH DC from the voxel's mean colour.
+
+    Args:
+        capture: the posed RGB-D frames.
+        cfg: the reconstruction parameters.
+        device: where the returned tensors live.
+    """
+    return init_from_frames(capture.frames, cfg, device=device)

@@ -1,0 +1,81 @@
+"""Frames as tensors on the training device, optionally downscaled, and the hold-out split."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from dcseg.render import Camera
+from dcseg.types import Frame, Intrinsics
+
+
+@dataclass(frozen=True)
+class View:
+    """One posed RGB-D frame as tensors.
+
+    Attributes:
+        name: the frame's name.
+        camera: the renderer's camera at this view's resolution.
+        rgb: ``[H, W, 3]`` float32 colour in [0, 1].
+        depth: ``[H, W]`` float32 metres, 0 = invalid.
+    """
+
+    name: str
+    camera: Camera
+    rgb: Tensor
+    depth: Tensor
+
+
+def split_frames(
+    frames: Sequence[Frame], holdout: int
+) -> tuple[tuple[Frame, ...], tuple[Frame, ...]]:
+    """``(train, test)``: frames with index ``i % holdout == 0`` are held out (0 = none)."""
+    if holdout == 0 or len(frames) < 2:
+        return tuple(frames), ()
+    test = tuple(f for i, f in enumerate(frames) if i % holdout == 0)
+    train = tuple(f for i, f in enumerate(frames) if i % holdout != 0)
+    return train, test
+
+
+def _downscaled(k: Intrinsics, factor: int, width: int, height: int) -> Intrinsics:
+    """Intrinsics after cropping to a multiple of ``factor`` and averaging ``factor`` blocks."""
+    return Intrinsics(
+        fx=k.fx / factor,
+        fy=k.fy / factor,
+        cx=(k.cx + 0.5) / factor - 0.5,
+        cy=(k.cy + 0.5) / factor - 0.5,
+        width=width,
+        height=height,
+    )
+
+
+def make_view(frame: Frame, downscale: int = 1, device: torch.device | str = "cpu") -> View:
+    """Tensors of ``frame``: colour area-averaged and depth sampled at block centres.
+
+    Args:
+        frame: the source frame.
+        downscale: integer factor; the size becomes ``(W // downscale, H // downscale)``.
+        device: where the tensors live.
+    """
+    rgb = torch.from_numpy(np.array(frame.rgb, dtype=np.float32) / 255.0).to(device)
+    depth = torch.from_numpy(np.array(frame.depth, dtype=np.float32)).to(device)
+    intrinsics = frame.intrinsics
+    if downscale > 1:
+        w, h = frame.width // downscale, frame.height // downscale
+        chw = rgb[: h * downscale, : w * downscale].permute(2, 0, 1).unsqueeze(0)
+        rgb = F.avg_pool2d(chw, downscale).squeeze(0).permute(1, 2, 0).contiguous()
+        start = downscale // 2
+        depth = depth[start::downscale, start::downscale][:h, :w].contiguous()
+        intrinsics = _downscaled(intrinsics, downscale, w, h)
+    camera = Camera(
+        c2w=torch.tensor(np.array(frame.c2w), dtype=torch.float32, device=device),
+        K=torch.tensor(intrinsics.matrix(), dtype=torch.float32, device=device),
+        width=intrinsics.width,
+        height=intrinsics.height,
+    )
+    return View(frame.name, camera, rgb, depth)

@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
+import tomllib
+from collections.abc import Iterable, Iterator
+from pathlib import Path
 
 from service.main import app
 from service.openapi import DEFAULT_PATH, render
 from tests.service.conftest import AUTH_A, assert_problem, state_of
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_openapi_document_is_up_to_date():
@@ -65,3 +71,29 @@ def test_not_ready_is_a_problem(client, monkeypatch):
     monkeypatch.setattr(state.store, "ping", broken)
     body = assert_problem(client.get("/readyz"), 503)
     assert body["checks"]["database"].startswith("error")
+
+
+def test_api_image_requirements_cover_the_api_imports():
+    """docker/api-requirements.txt must hold every project dependency the API process loads."""
+
+    def names(lines: Iterable[str]) -> Iterator[str]:
+        for line in lines:
+            line = line.strip().strip('",')
+            if line and not line.startswith("#"):
+                yield re.split(r"[<>=\[ ]", line, maxsplit=1)[0].lower().replace("-", "_")
+
+    import_name = {"opencv_python_headless": "cv2", "scikit_learn": "sklearn"}
+    requirements = (REPO / "docker/api-requirements.txt").read_text().splitlines()
+    image = {import_name.get(n, n) for n in names(requirements)}
+    pyproject = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["dependencies"]
+    project = {import_name.get(n, n) for n in names(pyproject)}
+    code = (
+        "import sys, service.main, service.uploads, dcseg.io.validate, dcseg.io.archive\n"
+        "print(' '.join(sorted({m.split('.')[0] for m in sys.modules})))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    loaded = set(result.stdout.split()) & project
+    assert loaded, "no project dependency seen: the check is broken"
+    assert loaded <= image, f"the API image lacks {sorted(loaded - image)}"

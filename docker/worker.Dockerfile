@@ -29,9 +29,9 @@ RUN apt-get update \
     && rm -rf /var/lib/apt/lists/*
 
 RUN python3.11 -m venv /opt/venv
-ENV PATH=/opt/venv/bin:$PATH \
-    # torch's and numba's OpenMP pools must not spin against each other (5-20x slower on CPU).
-    OMP_WAIT_POLICY=PASSIVE
+ENV PATH=/opt/venv/bin:$PATH
+# torch's and numba's OpenMP pools must not spin against each other (5-20x slower on CPU).
+ENV OMP_WAIT_POLICY=PASSIVE
 
 WORKDIR /app
 # torch from the CUDA index first, so `.[cuda]` does not pull another build.

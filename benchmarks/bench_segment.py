@@ -25,7 +25,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from dcseg.config import PipelineConfig, preset  # noqa: E402
 from dcseg.io.ground_truth import read_ground_truth  # noqa: E402
 from dcseg.io.run_output import load_run  # noqa: E402
-from dcseg.jobs import RunInputs, reclassify_job, recluster_job, run_job  # noqa: E402
+from dcseg.jobs import RunInputs, resegment_job, run_job  # noqa: E402
 from dcseg.pipeline import evaluate_segmentation, segment_scene  # noqa: E402
 from dcseg.synth import SynthConfig, generate_scene, write_scene  # noqa: E402
 
@@ -73,9 +73,10 @@ def matcher_table(run: Path, scene: Path) -> dict[str, Any]:
 
 def derived_timings(run: Path, scene: Path, work: Path) -> dict[str, float]:
     start = time.perf_counter()
-    recluster_job(run, 0.5, work / "recluster")
+    resegment_job(run, work / "recluster", scale=0.5)
     mid = time.perf_counter()
-    reclassify_job(run, scene / "gt" / "semantic", scene / "vocabulary.txt", work / "reclassify")
+    gt_maps, vocabulary = scene / "gt" / "semantic", scene / "vocabulary.txt"
+    resegment_job(run, work / "reclassify", semantic_masks=gt_maps, vocabulary=vocabulary)
     end = time.perf_counter()
     return {"recluster_seconds": round(mid - start, 2), "reclassify_seconds": round(end - mid, 2)}
 

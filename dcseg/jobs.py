@@ -6,6 +6,7 @@ Each job reads its inputs, calls the pipeline, and publishes a complete output f
 
 from __future__ import annotations
 
+import os
 import platform
 import resource
 import shutil
@@ -141,38 +142,95 @@ def run_job(
     return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True)
 
 
-def recluster_job(
-    run: Path, scale: float, out: Path, on_progress: Progress = _quiet
+def train_job(
+    inputs: RunInputs, cfg: PipelineConfig, out: Path, on_progress: Progress = _quiet
 ) -> dict[str, Any]:
-    """Re-cluster a finished run at another scale; nothing is trained again."""
-    _check_distinct(run, out)
+    """Reconstruct (unless a scene is given) and train features only.
+
+    ``out`` gets ``state/`` and ``run.json``, from which :func:`resegment_job` clusters and
+    classifies as often as wanted (the service's derived jobs rely on this split).
+    """
     clock = _Clock()
     with clock.phase("read"):
-        saved = load_run(run)
-    cfg = replace(_config(saved), scale=scale)
-    record = {**saved.record, "parent": str(run)}
-    return _finish(replace(saved, record=record), cfg, out, clock, None, on_progress)
+        capture = read_capture(inputs.capture, inputs.capture_options)
+        agnostic = read_agnostic_masks(inputs.agnostic_masks, size=_frame_size(capture))
+    _check_names(capture, agnostic, {})
+    reconstruction: dict[str, Any] = {}
+    with clock.phase("reconstruct"):
+        gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction)
+    with clock.phase("train"):
+        trained = train_scene(gaussians, capture, agnostic, cfg, on_progress)
+    picked = [capture.frames[i] for i in preview_indices(len(capture))]
+    previews = [(f.name, f.rgb) for f in picked]
+    tmp = staging_dir(out)
+    try:
+        save_state(tmp, trained, {}, None, previews)
+        record = {
+            "inputs": _describe(inputs),
+            "reconstruction": reconstruction,
+            "dcseg_version": __version__,
+            "config": cfg.to_dict(),
+            "seed": cfg.seed,
+            "seconds": clock.seconds,
+            "versions": _versions(),
+        }
+        write_json(tmp / "run.json", record)
+        publish(tmp, out)
+    except BaseException:
+        _discard(tmp)
+        raise
+    return record
 
 
-def reclassify_job(
+def resegment_job(
     run: Path,
-    semantic_masks: Path,
-    vocabulary_file: Path,
     out: Path,
+    *,
+    scale: float | None = None,
+    matcher: str | None = None,
+    semantic_masks: Path | None = None,
+    vocabulary: Path | None = None,
+    ground_truth: Path | None = None,
     on_progress: Progress = _quiet,
 ) -> dict[str, Any]:
-    """Re-classify a finished run with another segmenter's class masks; nothing is retrained."""
+    """Cluster and classify a trained run again; nothing is trained.
+
+    Args:
+        run: a run folder (from :func:`run_job`, :func:`train_job` or this function).
+        out: the new output folder (not ``run``).
+        scale: a new clustering scale (``recluster``); None keeps the run's.
+        matcher: ``"assignment"`` or ``"matching"``; None keeps the run's.
+        semantic_masks, vocabulary: new class-aware masks (``reclassify``); None keeps the
+            run's. A run from :func:`train_job` has none, so they are required there.
+        ground_truth: a ground-truth PLY to evaluate against.
+        on_progress: progress callback.
+    """
     _check_distinct(run, out)
     clock = _Clock()
     with clock.phase("read"):
         saved = load_run(run)
-        vocabulary = read_vocabulary(vocabulary_file)
-        size = (saved.trained.views[0].blend.width, saved.trained.views[0].blend.height)
-        semantic = read_semantic_maps(semantic_masks, vocabulary, size=size)
-    _check_subset(semantic, {v.name for v in saved.trained.views}, str(semantic_masks))
+        if semantic_masks is not None or vocabulary is not None:
+            saved = _with_semantic(saved, semantic_masks, vocabulary)
+        if not saved.semantic:
+            reason = "the run holds no class-aware masks; give new ones and a vocabulary"
+            raise InputError.single(str(run), reason)
+        gt = _read_gt(ground_truth, saved.vocabulary)
+    cfg = _config(saved)
+    cfg = replace(cfg, scale=cfg.scale if scale is None else scale)
+    if matcher is not None:
+        cfg = replace(cfg, assign=replace(cfg.assign, mode=matcher))  # type: ignore[arg-type]
     record = {**saved.record, "parent": str(run)}
-    changed = replace(saved, semantic=semantic, vocabulary=vocabulary, record=record)
-    return _finish(changed, _config(saved), out, clock, None, on_progress)
+    return _finish(replace(saved, record=record), cfg, out, clock, gt, on_progress)
+
+
+def _with_semantic(saved: SavedRun, masks: Path | None, vocabulary_file: Path | None) -> SavedRun:
+    if masks is None or vocabulary_file is None:
+        raise InputError.single("semantic masks", "new class-aware masks need a vocabulary")
+    vocabulary = read_vocabulary(vocabulary_file)
+    size = (saved.trained.views[0].blend.width, saved.trained.views[0].blend.height)
+    semantic = read_semantic_maps(masks, vocabulary, size=size)
+    _check_subset(semantic, {v.name for v in saved.trained.views}, str(masks))
+    return replace(saved, semantic=semantic, vocabulary=vocabulary)
 
 
 def evaluate_job(run: Path, gt_file: Path) -> dict[str, Any]:
@@ -361,7 +419,17 @@ def _check_distinct(run: Path, out: Path) -> None:
 
 
 def _copy_tree(src: Path, dst: Path, skip: tuple[str, ...]) -> None:
-    shutil.copytree(src, dst, ignore=lambda folder, names: [n for n in names if n in skip])
+    """Copy a parent's state (hard links where possible: state files are never modified)."""
+    shutil.copytree(
+        src, dst, ignore=lambda folder, names: [n for n in names if n in skip], copy_function=_link
+    )
+
+
+def _link(src: str, dst: str) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
 
 
 def _discard(tmp: Path) -> None:

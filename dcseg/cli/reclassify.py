@@ -25,11 +25,15 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dcseg.jobs import reclassify_job
+    from dcseg.jobs import resegment_job
 
     def job(progress: Any) -> dict[str, Any]:
-        return reclassify_job(
-            args.run_dir, args.semantic_masks, args.vocabulary, args.out, progress
+        return resegment_job(
+            args.run_dir,
+            args.out,
+            semantic_masks=args.semantic_masks,
+            vocabulary=args.vocabulary,
+            on_progress=progress,
         )
 
     return run_reporting(job, args)

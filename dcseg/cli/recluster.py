@@ -24,10 +24,12 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dcseg.jobs import recluster_job
+    from dcseg.jobs import resegment_job
 
     if not 0.0 <= args.scale <= 1.0:
         raise SystemExit(f"dcseg: --scale must be in [0, 1], got {args.scale}")
-    return run_reporting(
-        lambda progress: recluster_job(args.run_dir, args.scale, args.out, progress), args
-    )
+
+    def job(progress: Any) -> dict[str, Any]:
+        return resegment_job(args.run_dir, args.out, scale=args.scale, on_progress=progress)
+
+    return run_reporting(job, args)

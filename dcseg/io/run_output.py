@@ -116,16 +116,20 @@ def save_state(
     out: Path,
     trained: TrainedScene,
     semantic: Mapping[str, SemanticMap],
-    vocabulary: Vocabulary,
+    vocabulary: Vocabulary | None,
     previews: Sequence[tuple[str, NDArray[np.uint8]]],
 ) -> None:
-    """Write ``out/state/``: everything re-clustering and re-classifying need."""
+    """Write ``out/state/``: everything re-clustering and re-classifying need.
+
+    Without a vocabulary (a trained-only run) no class-aware masks are stored.
+    """
     state = out / "state"
     state.mkdir(parents=True, exist_ok=True)
     write_gaussians_ply(state / "gaussians.ply", trained.gaussians)
     save_affinity(state / "affinity.npz", trained.affinity)
     save_views(state, trained.views)
-    save_semantic(state, semantic, vocabulary)
+    if vocabulary is not None:
+        save_semantic(state, semantic, vocabulary)
     for i, (_, rgb) in enumerate(previews):
         write_png(state / "preview" / f"{i}.png", rgb)
     names = [name for name, _ in previews]
@@ -152,8 +156,10 @@ def load_run(run: Path) -> SavedRun:
     trained = TrainedScene(
         gaussians, load_affinity(state / "affinity.npz"), tuple(load_views(state))
     )
-    vocabulary = read_vocabulary(state / "vocabulary.json")
-    semantic = read_semantic_maps(state / "semantic", vocabulary)
+    vocabulary, semantic = Vocabulary(()), {}
+    if (state / "vocabulary.json").is_file():  # absent in trained-only runs
+        vocabulary = read_vocabulary(state / "vocabulary.json")
+        semantic = read_semantic_maps(state / "semantic", vocabulary)
     names = json.loads((state / "preview.json").read_text(encoding="utf-8"))["views"]
     previews = [(str(n), read_image(state / "preview" / f"{i}.png")) for i, n in enumerate(names)]
     record = json.loads((run / "run.json").read_text(encoding="utf-8"))

@@ -13,7 +13,7 @@ from dcseg.cli import main
 from dcseg.config import PipelineConfig, preset
 from dcseg.errors import InputError
 from dcseg.io.images import read_image
-from dcseg.jobs import RunInputs, evaluate_job, reclassify_job, recluster_job, run_job
+from dcseg.jobs import RunInputs, evaluate_job, resegment_job, run_job, train_job
 
 pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")
 
@@ -97,12 +97,14 @@ def test_recluster_reuses_training(
 ) -> None:
     forbid_training(monkeypatch)
     out = tmp_path / "coarse"
-    record = recluster_job(run_dir, 1.0, out)
+    record = resegment_job(run_dir, out, scale=1.0)
     assert record["config"]["scale"] == 1.0 and record["parent"] == str(run_dir)
     for name in OUTPUTS:
         assert (out / name).is_file(), name
     # The derived run can itself be re-clustered.
-    recluster_job(out, 0.2, tmp_path / "fine")
+    resegment_job(out, tmp_path / "fine", scale=0.2, matcher="matching")
+    fine = json.loads((tmp_path / "fine" / "run.json").read_text())
+    assert fine["config"]["assign"]["mode"] == "matching"
 
 
 def test_reclassify_with_other_masks(
@@ -111,7 +113,8 @@ def test_reclassify_with_other_masks(
     forbid_training(monkeypatch)
     out = tmp_path / "gt-classes"
     # Use the perfect per-frame ground truth as another segmenter's output.
-    reclassify_job(run_dir, scene / "gt" / "semantic", scene / "vocabulary.txt", out)
+    maps, vocabulary = scene / "gt" / "semantic", scene / "vocabulary.txt"
+    resegment_job(run_dir, out, semantic_masks=maps, vocabulary=vocabulary)
     labels = json.loads((out / "labels.json").read_text())["labels"]
     assert len(labels) == len((scene / "vocabulary.txt").read_text().split())
     metrics = evaluate_job(out, scene / "gt" / "points.ply")
@@ -121,7 +124,7 @@ def test_reclassify_with_other_masks(
 
 def test_derived_run_must_not_replace_parent(run_dir: Path) -> None:
     with pytest.raises(InputError, match="must not replace"):
-        recluster_job(run_dir, 0.5, run_dir)
+        resegment_job(run_dir, run_dir, scale=0.5)
 
 
 def test_masks_for_missing_frames_rejected(scene: Path, tmp_path: Path) -> None:
@@ -153,3 +156,42 @@ def test_bundle_without_masks_is_named(tmp_path: Path) -> None:
     (tmp_path / "vocabulary.txt").write_text("wall\n")
     with pytest.raises(InputError, match="agnostic_masks .*masks/agnostic.*semantic_masks"):
         RunInputs.from_bundle(tmp_path)
+
+
+def test_train_then_segment_separately(
+    scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    trained = tmp_path / "trained"
+    record = train_job(inputs_of(scene), tiny_config(), trained)
+    assert (trained / "state" / "affinity.npz").is_file()
+    assert not (trained / "state" / "semantic").exists() and "counts" not in record
+    with pytest.raises(InputError, match="no class-aware masks"):
+        resegment_job(trained, tmp_path / "none")
+    forbid_training(monkeypatch)
+    out = tmp_path / "segmented"
+    resegment_job(
+        trained,
+        out,
+        semantic_masks=scene / "masks" / "semantic",
+        vocabulary=scene / "vocabulary.txt",
+        ground_truth=scene / "gt" / "points.ply",
+    )
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    assert json.loads((out / "metrics.json").read_text())["summary"]["naive_fusion"]["miou"] > 0.5
+
+
+def test_cli_recluster_reclassify_evaluate(
+    run_dir: Path, scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    coarse, other = tmp_path / "coarse", tmp_path / "other"
+    assert main(["recluster", str(run_dir), "--scale", "0.9", "--out", str(coarse), "--quiet"]) == 0
+    assert json.loads((coarse / "run.json").read_text())["config"]["scale"] == 0.9
+    args = ["reclassify", str(run_dir), "--out", str(other), "--quiet"]
+    args += ["--semantic-masks", str(scene / "gt" / "semantic")]
+    args += ["--vocabulary", str(scene / "vocabulary.txt")]
+    assert main(args) == 0
+    assert main(["evaluate", str(other), "--gt", str(scene / "gt" / "points.ply")]) == 0
+    assert "naive_fusion" in json.loads(capsys.readouterr().out)
+    with pytest.raises(SystemExit, match="--scale must be in"):
+        main(["recluster", str(run_dir), "--scale", "2", "--out", str(tmp_path / "bad")])

@@ -156,27 +156,37 @@ def resolve_device(device: str) -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-SEGMENT_WEIGHTS = {"cache": 0.1, "affinity": 0.75, "cluster": 0.05, "masks": 0.04, "assign": 0.03}
-"""Share of the segment stage's time spent in each of the library's sub-stages."""
+TRAIN_WEIGHTS = {"cache": 0.1, "affinity": 0.9}
+"""Share of the train stage's time in each of the library's sub-stages."""
+
+SEGMENT_WEIGHTS = {"cluster": 0.4, "masks": 0.3, "assign": 0.3}
+"""Share of the segment stage's time in each of the library's sub-stages."""
 
 
-class SegmentStage:
-    """Stages 2-6 of DCSEG on the reconstructed scene: features, clusters, classes, exports."""
+class TrainStage:
+    """Stage 2 of DCSEG on the reconstructed scene: blend-weight caches and affinity features.
 
-    name = "segment"
+    A derived job reuses it (and so trains nothing) when the capture, the class-agnostic masks
+    and the training options are unchanged: a new scale, matcher or class-aware masks only
+    re-run the segment stage.
+    """
+
+    name = "train"
 
     def key(self, config: dict[str, Any]) -> dict[str, Any]:
         options = config.get("options", {})
+        inputs = config.get("inputs") or {}
         return {
             "reconstruct": ReconstructStage().key(config),
             "affinity": options.get("affinity", {}),
-            "segment": options.get("segment", {}),
-            "inputs": config.get("inputs"),
+            "seed": options.get("segment", {}).get("seed", 0),
+            "agnostic_masks": inputs.get("agnostic_masks"),
+            "upload": inputs.get("upload"),
         }
 
     def run(self, ctx: StageContext, out: Path) -> StageOutcome:
         from dcseg.errors import InputError
-        from dcseg.jobs import RunInputs, run_job
+        from dcseg.jobs import RunInputs, train_job
 
         assert ctx.output_root is not None
         scene = ctx.output_root / "reconstruct" / "scene.ply"
@@ -185,21 +195,57 @@ class SegmentStage:
                 ctx.input_root, scene=scene, capture_options=capture_options(ctx.config)
             )
         except InputError as error:  # a capture-only upload: reconstruct, nothing more
-            return StageOutcome("skipped", f"segment: {error.problems[0].reason}")
-        record = run_job(inputs, pipeline_config(ctx.config), out, _segment_progress(ctx))
+            return StageOutcome("skipped", f"train: {error.problems[0].reason}")
+        progress = _weighted_progress(ctx, TRAIN_WEIGHTS)
+        record = train_job(inputs, pipeline_config(ctx.config), out, progress)
+        return StageOutcome("done", f"train: {record['seconds'].get('train', 0):.0f} s")
+
+
+class SegmentStage:
+    """Stages 3-6 of DCSEG from the trained state: clusters, classes, exports, metrics."""
+
+    name = "segment"
+
+    def key(self, config: dict[str, Any]) -> dict[str, Any]:
+        inputs = config.get("inputs") or {}
+        return {
+            "train": TrainStage().key(config),
+            "segment": config.get("options", {}).get("segment", {}),
+            "inputs": {k: inputs.get(k) for k in ("semantic_masks", "vocabulary", "ground_truth")},
+        }
+
+    def run(self, ctx: StageContext, out: Path) -> StageOutcome:
+        from dcseg.jobs import resegment_job
+
+        assert ctx.output_root is not None
+        trained = ctx.output_root / "train"
+        if not (trained / "run.json").is_file():
+            return StageOutcome("skipped", "segment: nothing was trained (no masks uploaded)")
+        layout = input_layout(ctx.input_root)
+        options = ctx.config.get("options", {}).get("segment", {})
+        record = resegment_job(
+            trained,
+            out,
+            scale=float(options.get("scale", 0.8)),
+            matcher=str(options.get("matcher", "assignment")),
+            semantic_masks=layout["semantic_masks"],
+            vocabulary=layout["vocabulary"],
+            ground_truth=layout["ground_truth"],
+            on_progress=_weighted_progress(ctx, SEGMENT_WEIGHTS),
+        )
         counts = record["counts"]
         message = f"segment: {counts['clusters']} instances, {counts['labelled_clusters']} labelled"
         return StageOutcome("done", message)
 
 
-def _segment_progress(ctx: StageContext) -> Any:
-    order = list(SEGMENT_WEIGHTS)
+def _weighted_progress(ctx: StageContext, weights: dict[str, float]) -> Any:
+    order = list(weights)
 
     def report(stage: str, fraction: float, message: str) -> None:
-        if stage not in SEGMENT_WEIGHTS:
+        if stage not in weights:
             return
-        done = sum(SEGMENT_WEIGHTS[s] for s in order[: order.index(stage)])
-        ctx.progress(done + SEGMENT_WEIGHTS[stage] * fraction, f"{stage}: {message}")
+        done = sum(weights[s] for s in order[: order.index(stage)])
+        ctx.progress(done + weights[stage] * fraction, f"{stage}: {message}")
 
     return report
 
@@ -220,4 +266,4 @@ def pipeline_config(config: dict[str, Any]) -> Any:
 
 def default_stages() -> list[Stage]:
     """The stages, in order."""
-    return [ValidateStage(), ReconstructStage(), SegmentStage()]
+    return [ValidateStage(), ReconstructStage(), TrainStage(), SegmentStage()]

@@ -39,6 +39,8 @@ def test_validate_and_reconstruct_on_a_tiny_capture(store, settings, scene):
     metrics = json.loads((output / "reconstruct" / "metrics.json").read_text())
     assert metrics["gaussians"] > 0 and metrics["config"]["iterations"] == 2
     assert (output / "reconstruct" / "scene.ply").read_bytes().startswith(b"ply")
+    assert (output / "train" / "state" / "affinity.npz").is_file()
+    assert json.loads((output / "segment" / "instances.json").read_text())["instances"]
 
 
 def test_validate_stage_reports_damaged_inputs(store, settings, scene):
@@ -79,3 +81,28 @@ def test_celery_settings_and_task_adapter(monkeypatch):
     monkeypatch.setattr(celery_app, "_store", lambda: None)
     assert celery_app.run_job.run("job-9") == "succeeded"
     assert calls == ["job-9"] and celery_app.run_job.name == TASK_RUN_JOB
+
+
+def test_derived_job_with_new_scale_trains_nothing(store, settings, scene, monkeypatch):
+    _use_scene(settings, scene)
+    tiny = {
+        "reconstruct": {"iterations": 2, "holdout": 0},
+        "affinity": {"iterations": 5, "rays": 64},
+    }
+    settings = settings.model_copy(update={"device": "cpu"})
+    parent = add_job(store, options=tiny)
+    assert execute_job(parent, store, settings, stages=default_stages()) == "succeeded"
+
+    def fail(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("trained again")
+
+    monkeypatch.setattr("dcseg.pipeline.train_affinity", fail)
+    monkeypatch.setattr("dcseg.reconstruct.fit_gaussians", fail)
+    child = add_job(store, parent=parent, options={**tiny, "segment": {"scale": 0.3}})
+    assert execute_job(child, store, settings, stages=default_stages()) == "succeeded"
+    output = JobPaths(settings.storage_dir, child).output
+    manifest = json.loads((output / "manifest.json").read_text())
+    reused = {s["name"]: bool(s["details"].get("reused")) for s in manifest["stages"]}
+    assert reused == {"validate": True, "reconstruct": True, "train": True, "segment": False}
+    record = json.loads((output / "segment" / "run.json").read_text())
+    assert record["config"]["scale"] == 0.3

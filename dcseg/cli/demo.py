@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from dcseg.cli._options import parse_size
+
 log = logging.getLogger("dcseg")
 
 
@@ -22,7 +24,10 @@ def register(subparsers: Any) -> None:
         "metrics against the scene's ground truth next to the naive 2D-fusion baseline.",
     )
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="(runs/demo)")
-    parser.add_argument("--frames", type=int, default=24, help="synthetic views (24)")
+    parser.add_argument("--frames", type=int, default=16, help="synthetic views (16)")
+    parser.add_argument(
+        "--size", type=parse_size, default=(160, 120), help="view size WxH (160x120)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="scene and method seed (0)")
     parser.add_argument("--preset", choices=("fast", "paper"), default="fast", help="(fast)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -39,7 +44,9 @@ def run(args: argparse.Namespace) -> int:
     if scene_dir.exists():
         shutil.rmtree(scene_dir)
     log.info("synthesising %d views into %s", args.frames, scene_dir)
-    write_scene(generate_scene(SynthConfig(seed=args.seed, frames=args.frames)), scene_dir)
+    width, height = args.size
+    synth = SynthConfig(seed=args.seed, frames=args.frames, width=width, height=height)
+    write_scene(generate_scene(synth), scene_dir)
     inputs = RunInputs.from_bundle(scene_dir)
     with StageBars(enabled=not args.quiet) as bars:
         record = run_job(inputs, preset(args.preset).seeded(args.seed), run_dir, bars)

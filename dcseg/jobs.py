@@ -41,6 +41,7 @@ from dcseg.io.run_output import (
 )
 from dcseg.io.semantic import read_semantic_maps, read_vocabulary
 from dcseg.pipeline import (
+    Labels,
     Progress,
     Segmentation,
     evaluate_segmentation,
@@ -48,7 +49,7 @@ from dcseg.pipeline import (
     train_scene,
 )
 from dcseg.render import select_backend
-from dcseg.types import Capture, GroundTruth, SemanticMap, Vocabulary
+from dcseg.types import Capture, GroundTruth, Vocabulary
 
 
 @dataclass(frozen=True)
@@ -124,21 +125,12 @@ def run_job(
     clock = _Clock()
     with clock.phase("read"):
         capture = read_capture(inputs.capture, inputs.capture_options)
-        size = _frame_size(capture)
-        agnostic = read_agnostic_masks(inputs.agnostic_masks, size=size)
         vocabulary = read_vocabulary(inputs.vocabulary)
-        semantic = read_semantic_maps(inputs.semantic_masks, vocabulary, size=size)
+        semantic = read_semantic_maps(inputs.semantic_masks, vocabulary, size=_frame_size(capture))
         gt = _read_gt(inputs.ground_truth, vocabulary)
-    _check_names(capture, agnostic, semantic)
-    reconstruction: dict[str, Any] = {}
-    with clock.phase("reconstruct"):
-        gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction)
-    with clock.phase("train"):
-        trained = train_scene(gaussians, capture, agnostic, cfg, on_progress)
-    picked = [capture.frames[i] for i in preview_indices(len(capture))]
-    previews = [(f.name, f.rgb) for f in picked]
-    record = {"inputs": _describe(inputs), "reconstruction": reconstruction}
-    saved = SavedRun(trained, dict(semantic), vocabulary, previews, record)
+    _check_subset(semantic, set(capture.names), "class-aware masks")
+    trained = _train(inputs, capture, cfg, clock, on_progress)
+    saved = replace(trained, semantic=dict(semantic), vocabulary=vocabulary)
     return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True)
 
 
@@ -153,8 +145,28 @@ def train_job(
     clock = _Clock()
     with clock.phase("read"):
         capture = read_capture(inputs.capture, inputs.capture_options)
+    saved = _train(inputs, capture, cfg, clock, on_progress)
+    tmp = staging_dir(out)
+    try:
+        save_state(tmp, saved.trained, {}, None, saved.previews)
+        record = _base_record(saved, cfg, clock)
+        write_json(tmp / "run.json", record)
+        publish(tmp, out)
+    except BaseException:
+        _discard(tmp)
+        raise
+    return record
+
+
+def _train(
+    inputs: RunInputs, capture: Capture, cfg: PipelineConfig, clock: _Clock, on_progress: Progress
+) -> SavedRun:
+    """Read the class-agnostic masks, reconstruct and train: a run without class masks yet."""
+    with clock.phase("read"):
         agnostic = read_agnostic_masks(inputs.agnostic_masks, size=_frame_size(capture))
-    _check_names(capture, agnostic, {})
+    _check_subset(agnostic, set(capture.names), "class-agnostic masks")
+    if not any(len(m) for m in agnostic.values()):
+        raise InputError.single("class-agnostic masks", "no frame has any mask")
     reconstruction: dict[str, Any] = {}
     with clock.phase("reconstruct"):
         gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction)
@@ -162,24 +174,8 @@ def train_job(
         trained = train_scene(gaussians, capture, agnostic, cfg, on_progress)
     picked = [capture.frames[i] for i in preview_indices(len(capture))]
     previews = [(f.name, f.rgb) for f in picked]
-    tmp = staging_dir(out)
-    try:
-        save_state(tmp, trained, {}, None, previews)
-        record = {
-            "inputs": _describe(inputs),
-            "reconstruction": reconstruction,
-            "dcseg_version": __version__,
-            "config": cfg.to_dict(),
-            "seed": cfg.seed,
-            "seconds": clock.seconds,
-            "versions": _versions(),
-        }
-        write_json(tmp / "run.json", record)
-        publish(tmp, out)
-    except BaseException:
-        _discard(tmp)
-        raise
-    return record
+    record = {"inputs": _describe(inputs), "reconstruction": reconstruction}
+    return SavedRun(trained, {}, Vocabulary(()), previews, record)
 
 
 def resegment_job(
@@ -238,11 +234,7 @@ def evaluate_job(run: Path, gt_file: Path) -> dict[str, Any]:
     saved = load_run(run)
     gt = read_ground_truth(gt_file, len(saved.vocabulary))
     labels = load_labels(run, [v.name for v in saved.trained.views])
-    metrics = evaluate_segmentation(
-        saved.trained, labels, saved.semantic, gt, saved.vocabulary, _config(saved)
-    )
-    write_json(run / "metrics.json", metrics)
-    return metrics
+    return _evaluate(saved, labels, gt, _config(saved), run)
 
 
 def _finish(
@@ -260,7 +252,7 @@ def _finish(
     tmp = staging_dir(out)
     try:
         with clock.phase("evaluate"):
-            metrics = _evaluate(saved, segmentation, gt, cfg, tmp)
+            metrics = None if gt is None else _evaluate(saved, segmentation.labels(), gt, cfg, tmp)
         with clock.phase("write"):
             write_outputs(tmp, trained, segmentation, vocabulary, saved.previews)
             _write_state(tmp, saved, train_state)
@@ -285,19 +277,28 @@ def _write_state(tmp: Path, saved: SavedRun, full: bool) -> None:
 
 
 def _evaluate(
-    saved: SavedRun,
-    segmentation: Segmentation,
-    gt: GroundTruth | None,
-    cfg: PipelineConfig,
-    tmp: Path,
-) -> dict[str, Any] | None:
-    if gt is None:
-        return None
+    saved: SavedRun, labels: Labels, gt: GroundTruth, cfg: PipelineConfig, folder: Path
+) -> dict[str, Any]:
+    """Evaluate labels against ground truth and write ``folder/metrics.json``."""
     metrics = evaluate_segmentation(
-        saved.trained, segmentation.labels(), saved.semantic, gt, saved.vocabulary, cfg
+        saved.trained, labels, saved.semantic, gt, saved.vocabulary, cfg
     )
-    write_json(tmp / "metrics.json", metrics)
+    write_json(folder / "metrics.json", metrics)
     return metrics
+
+
+def _base_record(saved: SavedRun, cfg: PipelineConfig, clock: _Clock) -> dict[str, Any]:
+    return {
+        **saved.record,
+        "dcseg_version": __version__,
+        "config": cfg.to_dict(),
+        "seed": cfg.seed,
+        "seconds": clock.seconds,
+        "peak_memory_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "backend": select_backend(saved.trained.gaussians.device, cfg.reconstruct.backend),
+        "versions": _versions(),
+        "cache_mb": round(sum(v.blend.nbytes() for v in saved.trained.views) / 2**20, 1),
+    }
 
 
 def _record(
@@ -307,25 +308,16 @@ def _record(
     clock: _Clock,
     metrics: dict[str, Any] | None,
 ) -> dict[str, Any]:
-    trained = saved.trained
     a = segmentation.assignment
     return {
-        **saved.record,
-        "dcseg_version": __version__,
-        "config": cfg.to_dict(),
-        "seed": cfg.seed,
-        "seconds": clock.seconds,
-        "peak_memory_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
-        "backend": select_backend(trained.gaussians.device, cfg.reconstruct.backend),
-        "versions": _versions(),
+        **_base_record(saved, cfg, clock),
         "counts": {
-            "gaussians": len(trained.gaussians),
-            "views": len(trained.views),
+            "gaussians": len(saved.trained.gaussians),
+            "views": len(saved.trained.views),
             "clusters": segmentation.n_instances,
             "labelled_clusters": int((a.labels >= 0).sum()),
             "labelled_gaussians": int((segmentation.semantic_ids >= 0).sum()),
         },
-        "cache_mb": round(sum(v.blend.nbytes() for v in trained.views) / 2**20, 1),
         "metrics_summary": None if metrics is None else metrics["summary"],
     }
 
@@ -383,16 +375,6 @@ def _frame_size(capture: Capture) -> tuple[int, int]:
 
 def _read_gt(path: Path | None, vocabulary: Vocabulary) -> GroundTruth | None:
     return None if path is None else read_ground_truth(path, len(vocabulary))
-
-
-def _check_names(
-    capture: Capture, agnostic: Mapping[str, Any], semantic: Mapping[str, SemanticMap]
-) -> None:
-    names = set(capture.names)
-    _check_subset(agnostic, names, "class-agnostic masks")
-    _check_subset(semantic, names, "class-aware masks")
-    if not any(len(agnostic[n]) for n in agnostic):
-        raise InputError.single("class-agnostic masks", "no frame has any mask")
 
 
 def _check_subset(per_frame: Mapping[str, Any], names: set[str], what: str) -> None:

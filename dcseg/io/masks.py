@@ -27,6 +27,7 @@ import pycocotools.mask as mask_util
 from numpy.typing import NDArray
 
 from dcseg.errors import InputError, Problem
+from dcseg.io.folders import entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest
 from dcseg.types import AgnosticMasks
 
@@ -210,26 +211,14 @@ def read_agnostic_masks(
 
 
 def _mask_entries(folder: Path) -> tuple[dict[str, Path], list[Problem]]:
-    """Map stems to mask entries; report stems that appear in more than one format."""
-    by_stem: dict[str, list[Path]] = {}
-    for entry in sorted(folder.iterdir()):
-        if entry.name.startswith("."):
-            continue
-        if not entry.is_dir() and entry.suffix.lower() not in MASK_SUFFIXES:
-            logger.debug("ignoring %s: not a mask file", entry)
-            continue
-        stem = entry.name if entry.is_dir() else entry.stem
-        by_stem.setdefault(stem, []).append(entry)
-    problems = [
-        Problem(
-            display_path(paths[0], folder.parent),
-            f"frame {stem!r} has masks in several formats: "
-            + ", ".join(display_path(p, folder.parent) for p in paths),
-        )
-        for stem, paths in by_stem.items()
-        if len(paths) > 1
-    ]
-    return {s: p[0] for s, p in by_stem.items() if len(p) == 1}, problems
+    """Map stems to mask entries (files or PNG folders); report stems in several formats."""
+
+    def stem_of(entry: Path) -> str | None:
+        if entry.is_dir():
+            return entry.name
+        return entry.stem if entry.suffix.lower() in MASK_SUFFIXES else None
+
+    return entries_by_stem(folder, stem_of, "masks")
 
 
 def _read_entry(entry: Path, stem: str, root: Path, size: tuple[int, int] | None) -> AgnosticMasks:

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.errors import InputError, Problem
+from dcseg.io.folders import entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest, write_image
 from dcseg.types import SemanticMap, Vocabulary
 
@@ -189,24 +190,11 @@ def write_semantic_png(path: Path, m: SemanticMap, n_classes: int) -> None:
 
 def _map_entries(folder: Path) -> tuple[dict[str, Path], list[Problem]]:
     """Map stems to class-map files; report stems that appear in more than one format."""
-    by_stem: dict[str, list[Path]] = {}
-    for entry in sorted(folder.iterdir()):
-        if entry.name.startswith("."):
-            continue
-        if entry.is_dir() or entry.suffix.lower() not in MAP_SUFFIXES:
-            logger.debug("ignoring %s: not a class map", entry)
-            continue
-        by_stem.setdefault(entry.stem, []).append(entry)
-    problems = [
-        Problem(
-            display_path(paths[0], folder.parent),
-            f"frame {stem!r} has class maps in several formats: "
-            + ", ".join(display_path(p, folder.parent) for p in paths),
-        )
-        for stem, paths in by_stem.items()
-        if len(paths) > 1
-    ]
-    return {s: p[0] for s, p in by_stem.items() if len(p) == 1}, problems
+
+    def stem_of(entry: Path) -> str | None:
+        return None if entry.is_dir() or entry.suffix.lower() not in MAP_SUFFIXES else entry.stem
+
+    return entries_by_stem(folder, stem_of, "class maps")
 
 
 def _read_class_map(path: Path, root: Path, n_classes: int) -> NDArray[np.int32]:

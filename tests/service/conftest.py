@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import shutil
+import subprocess
 import tarfile
 import time
 import warnings
@@ -127,6 +128,16 @@ def wait_for(predicate: Callable[[], Any], timeout: float = 60.0, every: float =
             return value
         time.sleep(every)
     raise AssertionError(f"condition not met within {timeout} s")
+
+
+def stop_process(process: subprocess.Popen[Any], sig: int, grace: float) -> None:
+    """Send ``sig``; kill the process if it has not exited after ``grace`` seconds."""
+    process.send_signal(sig)
+    try:
+        process.wait(grace)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(5)
 
 
 def state_of(client: Any) -> AppState:

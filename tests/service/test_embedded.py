@@ -27,6 +27,7 @@ from tests.service.conftest import (
     TestClient,
     make_settings,
     state_of,
+    stop_process,
     tar_bytes,
     wait_for,
 )
@@ -82,12 +83,7 @@ def serve(tmp_path: Path) -> Iterator[str]:
         wait_for(up, timeout=60, every=0.1)
         yield url
     finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(20)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(5)
+        stop_process(process, signal.SIGINT, 20)
         log.close()
 
 

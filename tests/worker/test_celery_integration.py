@@ -29,6 +29,7 @@ from tests.service.conftest import (
     TestClient,
     make_settings,
     state_of,
+    stop_process,
     tar_bytes,
     wait_for,
 )
@@ -103,12 +104,7 @@ def start_worker(
     yield start
     for process, log in started:
         if process.poll() is None:
-            process.send_signal(signal.SIGTERM)
-            try:
-                process.wait(15)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(5)
+            stop_process(process, signal.SIGTERM, 15)
         log.close()
 
 

@@ -193,9 +193,16 @@ DEFAULT_URL = "http://127.0.0.1:8000"
 
 
 def client_from_args(url: str | None, api_key: str | None) -> Client:
-    """A client for the CLI verbs: flags first, then ``DCSEG_URL`` / ``DCSEG_API_KEY``."""
+    """A client for the CLI verbs: flags first, then ``DCSEG_URL`` / ``DCSEG_API_KEY``.
+
+    httpx logs every request at INFO (``dcseg wait`` would print one line per poll); its
+    logger is raised to WARNING unless the CLI runs with ``--verbose`` (DEBUG).
+    """
+    import logging
     import os
 
+    if not logging.getLogger().isEnabledFor(logging.DEBUG):
+        logging.getLogger("httpx").setLevel(logging.WARNING)
     return Client(
         url or os.environ.get("DCSEG_URL", DEFAULT_URL),
         api_key or os.environ.get("DCSEG_API_KEY") or None,

@@ -42,40 +42,67 @@ Upload a capture archive (`POST /v1/uploads`), submit a job (`POST /v1/jobs`), p
 """
 
 
-def sweep(store: Store, queue: JobQueue, settings: Settings) -> None:
-    """Pick up jobs a previous run left unfinished.
+def sweep(store: Store, queue: JobQueue, settings: Settings) -> bool:
+    """Pick up jobs a previous run left unfinished; False when they still need re-sending.
 
     Embedded mode owns every job: running ones go back to ``queued`` and the local worker
     resumes them after their last finished stage. With a broker, queued jobs and running jobs
     whose worker stopped heartbeating are sent again (a duplicate delivery is harmless: only
-    one worker can claim a job).
+    one worker can claim a job); if the broker is down, the recovery sweep retries.
     """
     if settings.broker_url is None:
         requeued = store.requeue_running()
         if requeued:
             logger.info("requeued %d unfinished job(s): %s", len(requeued), requeued)
-        return
-    for job_id in store.unfinished(timedelta(seconds=3 * settings.heartbeat_s)):
-        try:
-            queue.enqueue(job_id)
-        except Exception:
-            logger.exception("could not re-enqueue job %s", job_id)
+        return True
+    try:
+        resend_unfinished(store, queue, settings)
+    except Exception:
+        logger.exception("could not re-send unfinished jobs; the recovery sweep retries")
+        return False
+    return True
+
+
+def resend_unfinished(store: Store, queue: JobQueue, settings: Settings) -> int:
+    """Send every queued job (and running job with a stale lease) to the queue again, then
+    mark the queue intact; returns how many were sent. Raises when the broker is down (the
+    queue is then not marked, so the next sweep tries again)."""
+    job_ids = store.unfinished(timedelta(seconds=3 * settings.heartbeat_s))
+    for job_id in job_ids:
+        queue.enqueue(job_id)
+    queue.mark_intact()
+    return len(job_ids)
+
+
+def recover_once(store: Store, queue: JobQueue, settings: Settings, resend: bool) -> None:
+    """One pass of the recovery sweep (blocking): requeue and send running jobs whose worker
+    died; re-send every queued job when ``resend`` or when the broker lost its messages."""
+    for job_id in store.requeue_stale(timedelta(seconds=3 * settings.heartbeat_s)):
+        logger.warning("job %s lost its worker; requeued", job_id)
+        queue.enqueue(job_id)
+    if resend or queue.lost_messages():
+        sent = resend_unfinished(store, queue, settings)
+        logger.warning("the broker had lost queued messages; re-sent %d job(s)", sent)
 
 
 async def recover_lost_jobs(
-    store: Store, queue: JobQueue, settings: Settings, local: EmbeddedWorker | None
+    store: Store,
+    queue: JobQueue,
+    settings: Settings,
+    local: EmbeddedWorker | None,
+    resend: bool = False,
 ) -> None:
     """Forever: requeue running jobs whose worker died (stale heartbeat) and enqueue them;
-    restart the embedded worker if it died."""
-    stale = timedelta(seconds=3 * settings.heartbeat_s)
+    re-send queued jobs when the broker lost its data (Redis restarted without persistence)
+    or ``resend`` (the startup sweep could not reach it); restart the embedded worker if it
+    died."""
     while True:
         await asyncio.sleep(settings.sweep_interval_s)
         if local is not None:
             local.ensure_running()
         try:
-            for job_id in await run_in_threadpool(store.requeue_stale, stale):
-                logger.warning("job %s lost its worker; requeued", job_id)
-                await run_in_threadpool(queue.enqueue, job_id)
+            await run_in_threadpool(recover_once, store, queue, settings, resend)
+            resend = False
         except Exception:
             logger.exception("recovery sweep failed; retrying")
 
@@ -123,14 +150,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         current = settings or get_settings()
         state = open_state(current)
         app.state.dcseg = state
-        sweep(state.store, state.queue, current)
+        swept = sweep(state.store, state.queue, current)
         local = None
         if current.broker_url is None and current.embedded_worker != "off":
             from worker.local import EmbeddedWorker
 
             local = EmbeddedWorker(current, mode=current.embedded_worker)
             local.start()
-        recovery = asyncio.create_task(recover_lost_jobs(state.store, state.queue, current, local))
+        recovery = asyncio.create_task(
+            recover_lost_jobs(state.store, state.queue, current, local, resend=not swept)
+        )
         try:
             yield
         finally:

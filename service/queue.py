@@ -7,7 +7,8 @@ name (``send_task``), and in embedded mode the queued row in the job store *is* 
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING, Protocol
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
 from worker.contract import TASK_RUN_JOB, celery_config
 
@@ -19,6 +20,11 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 
+def marker_key(queue: str) -> str:
+    """The Redis key whose absence tells the API that the broker lost its data."""
+    return f"_dcseg.intact.{queue}"
+
+
 class JobQueue(Protocol):
     """Where the API puts job ids for workers to pick up."""
 
@@ -26,6 +32,15 @@ class JobQueue(Protocol):
 
     def ping(self) -> None:
         """Raise unless the queue is reachable."""
+        ...
+
+    def lost_messages(self) -> bool:
+        """Whether the queue lost its messages since :meth:`mark_intact` was last called (the
+        caller then sends every queued job again)."""
+        ...
+
+    def mark_intact(self) -> None:
+        """Record that every queued job has been sent to the queue."""
         ...
 
 
@@ -36,6 +51,12 @@ class StoreQueue:
         logger.debug("job %s waits for the embedded worker", job_id)
 
     def ping(self) -> None:
+        return None
+
+    def lost_messages(self) -> bool:
+        return False
+
+    def mark_intact(self) -> None:
         return None
 
 
@@ -63,6 +84,22 @@ class CeleryQueue:
     def ping(self) -> None:
         with self.app.connection_for_write() as conn:
             conn.ensure_connection(max_retries=1, timeout=2)
+
+    def lost_messages(self) -> bool:
+        """True when the marker key :meth:`mark_intact` set is gone: Redis restarted without
+        persistence, was flushed or failed over to an empty replica, and took the queued
+        messages with it. Brokers other than Redis answer False."""
+        return bool(self._redis(lambda client: not client.exists(marker_key(self.queue))))
+
+    def mark_intact(self) -> None:
+        self._redis(lambda client: client.set(marker_key(self.queue), "1"))
+
+    def _redis(self, call: Callable[[Any], Any]) -> Any:
+        """``call(redis_client)`` on the broker's Redis; False for other brokers."""
+        with self.app.connection_for_write() as conn:
+            conn.ensure_connection(max_retries=1, timeout=2)
+            client = getattr(conn.default_channel, "client", None)
+            return False if client is None else call(client)
 
 
 def make_queue(settings: Settings) -> JobQueue:

@@ -66,7 +66,8 @@ class Settings(BaseSettings):
 
     sweep_interval_s: float = Field(default=30.0, gt=0)
     """How often the API requeues running jobs whose worker stopped heartbeating (a killed
-    worker's job is picked up again after about ``3 * heartbeat_s + sweep_interval_s``)."""
+    worker's job is picked up again after about ``3 * heartbeat_s + sweep_interval_s``) and
+    re-sends queued jobs if the broker lost its messages (Redis restarted without persistence)."""
 
     gpu_queue: str = "gpu"
     """Celery queue of the pipeline task."""

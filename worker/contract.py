@@ -96,6 +96,10 @@ def celery_config(
         "accept_content": ["json"],
         "broker_transport_options": {"visibility_timeout": visibility_timeout_s},
         "broker_connection_retry_on_startup": True,
+        # Redis restarting under a worker: the running job goes on (its lease lives in the job
+        # store, not in the broker) and the worker reconnects. Pinned because Celery 6 turns
+        # this on (cancelling the job, whose message the restart may have lost anyway).
+        "worker_cancel_long_running_tasks_on_connection_loss": False,
         "worker_hijack_root_logger": False,
         "worker_send_task_events": False,
     }

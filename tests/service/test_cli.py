@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import pytest
 
 from dcseg.cli import main
@@ -45,3 +47,15 @@ def test_settings_from_environment(monkeypatch, tmp_path):
     assert settings.db_url == f"sqlite:///{tmp_path.resolve() / 'dcseg.db'}"
     with pytest.raises(ValueError, match="tenant:key"):
         Settings(api_keys="no-colon").parsed_api_keys()
+
+
+def test_client_verbs_do_not_log_every_request(caplog):
+    from dcseg.client import client_from_args
+
+    httpx_logger = logging.getLogger("httpx")
+    caplog.set_level(logging.INFO)
+    try:
+        client_from_args("http://127.0.0.1:1", None).close()
+        assert httpx_logger.getEffectiveLevel() == logging.WARNING
+    finally:
+        httpx_logger.setLevel(logging.NOTSET)

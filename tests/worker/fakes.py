@@ -43,9 +43,17 @@ class RecordingQueue:
     """A JobQueue that remembers what was enqueued."""
 
     job_ids: list[str] = field(default_factory=list)
+    intact: bool = True
+    """False = the broker lost its messages (until :meth:`mark_intact`)."""
 
     def enqueue(self, job_id: str) -> None:
         self.job_ids.append(job_id)
 
     def ping(self) -> None:
         return None
+
+    def lost_messages(self) -> bool:
+        return not self.intact
+
+    def mark_intact(self) -> None:
+        self.intact = True

@@ -23,6 +23,7 @@ import pytest
 import redis
 
 from service.main import create_app
+from service.queue import marker_key
 from tests.service.conftest import (
     AUTH_A,
     TAR,
@@ -71,7 +72,12 @@ def _forget_queue(queue: str) -> None:
     """Drop this run's queue and its unacknowledged messages from the shared Redis."""
     broker = redis.Redis.from_url(REDIS_URL)
     try:
-        broker.delete(queue, f"_kombu.binding.{queue}", f"_kombu.binding_permanent.{queue}")
+        broker.delete(
+            queue,
+            f"_kombu.binding.{queue}",
+            f"_kombu.binding_permanent.{queue}",
+            marker_key(queue),
+        )
         for tag, raw in broker.hgetall("unacked").items():
             try:
                 routing_key = json.loads(raw)[2]
@@ -160,7 +166,6 @@ def test_job_survives_a_lost_queue_and_runs_in_a_worker_process(
         broker.close()
 
 
-@pytest.mark.slow
 def test_killed_worker_job_resumes_after_last_finished_stage(
     celery_env, start_worker, scene, tmp_path
 ):

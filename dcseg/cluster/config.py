@@ -48,6 +48,12 @@ class ClusterConfig:
             features (paper: 0.01).
         min_similarity: a Gaussian whose best cosine similarity to any cluster centre is below
             this stays unassigned (-1) (paper: 0.5).
+        refit_unassigned: fit HDBSCAN a second time on the Gaussians no first-pass centre
+            claimed (dcseg's addition; :func:`~dcseg.cluster.features.refit_unassigned`).
+            Small objects (a few dozen Gaussians) get too few sample points for a cluster of
+            their own in the first pass and end up as noise; measured on the 40-view clean
+            synthetic scene: lego and domino IoU 0 -> 81 and 100 (with the smaller 2D filter
+            of :class:`~dcseg.segment.MaskConfig`), projection mIoU 70.8 -> 89.6.
         remove_outliers: run the 3D connected-component outlier removal (Part B.6).
         outlier_radius: radius (world units) of the per-cluster radius graph; None = adaptive,
             ``radius_factor`` x the median nearest-neighbour spacing of all Gaussian centres.
@@ -66,6 +72,7 @@ class ClusterConfig:
     min_samples: int | None = None
     cluster_selection_epsilon: float = 0.01
     min_similarity: float = 0.5
+    refit_unassigned: bool = True
     remove_outliers: bool = True
     outlier_radius: float | None = None
     radius_factor: float = 20.0

@@ -91,6 +91,36 @@ def label_means(
     return l2_normalize(sums[counts > 0].astype(np.float32))
 
 
+def refit_unassigned(
+    x: NDArray[np.float32],
+    labels: NDArray[np.int64],
+    scores: NDArray[np.float32],
+    centers: NDArray[np.float32],
+    cfg: ClusterConfig,
+    *,
+    clusterer: Clusterer | None = None,
+) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+    """Second HDBSCAN pass over the Gaussians no centre claimed (``labels == -1``).
+
+    Objects with a few dozen Gaussians get a handful of sample points and no centre of their
+    own in the first pass; their Gaussians then sit far from every centre. Fitting again on
+    them alone (the same sampling rule and HDBSCAN settings) finds those objects; the new
+    centres are appended after the first pass's and only unassigned Gaussians can join them.
+
+    Returns:
+        Updated ``labels [N]``, ``scores [N]`` and ``centers [K + K2, D]`` (new arrays).
+    """
+    pool = np.flatnonzero(labels < 0)
+    extra = fit_clusters(x[pool], cfg, clusterer=clusterer)
+    if extra.shape[0] == 0:
+        return labels, scores, centers
+    sub_labels, sub_scores = assign_to_centers(x[pool], extra, cfg.min_similarity)
+    labels, scores = labels.copy(), scores.copy()
+    labels[pool] = np.where(sub_labels >= 0, sub_labels + len(centers), -1)
+    scores[pool] = np.maximum(scores[pool], sub_scores)
+    return labels, scores, np.concatenate([centers, extra]).astype(np.float32)
+
+
 def fit_clusters(
     x: NDArray[np.float32], cfg: ClusterConfig, *, clusterer: Clusterer | None = None
 ) -> NDArray[np.float32]:

@@ -14,6 +14,7 @@ from dcseg.cluster.features import (
     assign_to_centers,
     fit_clusters,
     l2_normalize,
+    refit_unassigned,
 )
 from dcseg.cluster.outliers import adaptive_radius, compact_labels, remove_outliers_3d
 
@@ -65,8 +66,10 @@ def cluster_features(
 
     Steps: L2-normalise; fit HDBSCAN on a seeded sample (:func:`fit_clusters`); assign every
     Gaussian to its most similar centre above ``cfg.min_similarity``
-    (:func:`assign_to_centers`); drop small disconnected 3D fragments of each cluster
-    (:func:`remove_outliers_3d`); remove emptied clusters and re-index ``0..K-1``.
+    (:func:`assign_to_centers`); fit again on the Gaussians left unassigned
+    (:func:`refit_unassigned`, when ``cfg.refit_unassigned``); drop small disconnected 3D
+    fragments of each cluster (:func:`remove_outliers_3d`); remove emptied clusters and
+    re-index ``0..K-1``.
     Deterministic for a given ``cfg.seed``.
 
     Args:
@@ -93,6 +96,10 @@ def cluster_features(
     x = l2_normalize(x)
     centers = fit_clusters(x, cfg, clusterer=clusterer)
     labels, scores = assign_to_centers(x, centers, cfg.min_similarity)
+    if cfg.refit_unassigned:
+        labels, scores, centers = refit_unassigned(
+            x, labels, scores, centers, cfg, clusterer=clusterer
+        )
     if cfg.remove_outliers:
         labels = _drop_outliers(pos, labels, w, cfg)
     labels, centers = compact_labels(labels, centers)

@@ -20,11 +20,16 @@ class MaskConfig:
             synthetic scene (projection mIoU 0.66 vs 0.60): floaters outside any cluster take
             part of a pixel's weight.
         min_area_fraction: 2D connected-component filter (8-connectivity): components smaller
-            than this fraction of the image are removed (paper: 1000 px at 1200x680).
+            than this fraction of the image are removed. The paper's 1000 px at 1200x680
+            (:data:`PAPER_MIN_AREA_FRACTION`, 0.00123) erases small objects entirely (94 px at
+            320x240, more than a toy brick covers); 0.0003 (23 px at 320x240, 245 px at
+            1200x680) measured best on the 40-view clean synthetic scene: projection mIoU
+            70.8 / 88.8 / 89.6 / 88.5 at 0.00123 / 0.0002 / 0.0003 / 0.0004 (with the
+            clustering's second pass).
     """
 
     min_weight: float = 0.33
-    min_area_fraction: float = PAPER_MIN_AREA_FRACTION
+    min_area_fraction: float = 0.0003
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_weight <= 1.0:

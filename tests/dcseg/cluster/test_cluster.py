@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -96,6 +97,30 @@ def test_far_fragment_of_a_cluster_becomes_noise() -> None:
 
 def line(n: int, start: float, spacing: float = 0.1) -> NDArray[np.float64]:
     return np.stack([start + spacing * np.arange(n), np.zeros(n), np.zeros(n)], axis=1)
+
+
+def test_second_pass_finds_objects_the_sample_missed() -> None:
+    """Two 12-Gaussian objects among 20 000: the 1000-point sample holds about one Gaussian of
+    each, so only the refit on unassigned Gaussians gives them clusters of their own."""
+    feats, xyz, truth = blobs(n=20_000, k=4, seed=1)
+    rng = np.random.default_rng(2)
+    blob_centres = np.stack([feats[truth == i].mean(0) for i in range(4)])
+    # two directions orthogonal to every blob (cosine ~0: no first-pass centre claims them)
+    basis = np.linalg.qr(np.concatenate([blob_centres, rng.standard_normal((2, 16))]).T)[0]
+    directions = basis[:, 4:6].T
+    small = np.repeat(directions, 12, axis=0) + 0.02 * rng.standard_normal((24, 16))
+    small /= np.linalg.norm(small, axis=1, keepdims=True)
+    feats = np.concatenate([feats, small.astype(np.float32)])
+    xyz = np.concatenate([xyz, 20.0 + np.repeat(np.eye(3)[:2], 12, 0) + 0.1 * rng.random((24, 3))])
+    cfg = ClusterConfig(min_sample_size=1000, max_sample_size=1000, refit_unassigned=False)
+    first = cluster_features(feats, xyz, None, cfg)
+    assert first.n_clusters == 4 and np.all(first.labels[-24:] == -1)
+    second = cluster_features(feats, xyz, None, replace(cfg, refit_unassigned=True))
+    assert second.n_clusters == 6
+    np.testing.assert_array_equal(second.labels[:-24], first.labels[:-24])
+    assert set(second.labels[-24:-12].tolist()) | set(second.labels[-12:].tolist()) == {4, 5}
+    assert len(set(second.labels[-24:-12].tolist())) == 1 == len(set(second.labels[-12:]))
+    assert np.all(second.scores[-24:] > 0.9)
 
 
 def test_remove_outliers_by_size_and_weight_share() -> None:

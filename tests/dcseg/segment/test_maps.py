@@ -8,6 +8,7 @@ import torch
 
 from dcseg.blend import BlendWeights
 from dcseg.segment import MaskConfig, cluster_map, label_map
+from dcseg.segment.config import PAPER_MIN_AREA_FRACTION
 
 
 def one_per_pixel(ids: list[list[int]], weight: float = 0.9) -> BlendWeights:
@@ -50,5 +51,8 @@ def test_mask_config_rejects(kwargs: dict[str, float], match: str) -> None:
 
 
 def test_min_area_scales_with_image() -> None:
-    assert MaskConfig().min_area(1200, 680) == 1000
-    assert MaskConfig().min_area(320, 240) == 94
+    paper = MaskConfig(min_area_fraction=PAPER_MIN_AREA_FRACTION)
+    assert paper.min_area(1200, 680) == 1000
+    assert paper.min_area(320, 240) == 94
+    assert MaskConfig().min_area(1200, 680) == 245
+    assert MaskConfig().min_area(320, 240) == 23

@@ -62,6 +62,13 @@ class CacheConfig:
     max_per_pixel: int = 32
 
 
+DEFAULT_SCALE = 0.5
+"""Default clustering scale (quantile space). The paper clusters at 0.8; on the 40-view
+synthetic scenes 0.5 measured better and never worse (projection mIoU at 0.5 / 0.8: clean 89.8 /
+89.6, default noise 83.2 / 73.3, heavy 65.8 / 58.4): at 0.8 grouped SAM-style masks (a duck on its
+tray) merge neighbouring objects. ``dcseg recluster`` changes it without retraining."""
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     """Every method parameter of a run; travels with a job and is stored in ``run.json``.
@@ -69,8 +76,8 @@ class PipelineConfig:
     Attributes:
         reconstruct, affinity, cluster, masks, assign, evaluate: each stage's own config.
         cache: the blending-weight cache truncation.
-        scale: the clustering scale in quantile space [0, 1] (paper: 0.8); re-clustering at
-            another scale reuses everything trained.
+        scale: the clustering scale in quantile space [0, 1] (:data:`DEFAULT_SCALE`; paper:
+            0.8); re-clustering at another scale reuses everything trained.
         seed: the seed every stage's random choices derive from.
     """
 
@@ -81,7 +88,7 @@ class PipelineConfig:
     assign: AssignConfig = field(default_factory=AssignConfig)
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     cache: CacheConfig = field(default_factory=CacheConfig)
-    scale: float = 0.8
+    scale: float = DEFAULT_SCALE
     seed: int = 0
 
     def __post_init__(self) -> None:

@@ -7,6 +7,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt, model_validator
 
+from dcseg.config import DEFAULT_SCALE
+
 JobStatus = Literal["queued", "running", "succeeded", "failed", "canceling", "canceled"]
 """Job statuses; clients must tolerate values added later."""
 
@@ -33,7 +35,9 @@ class SegmentOptionsIn(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    scale: float = Field(default=0.8, ge=0.0, le=1.0, description="clustering scale in [0, 1]")
+    scale: float = Field(
+        default=DEFAULT_SCALE, ge=0.0, le=1.0, description="clustering scale in [0, 1]"
+    )
     matcher: Literal["assignment", "matching"] = Field(
         default="assignment", description="class replication (assignment) or one-to-one"
     )

@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from dcseg.config import DEFAULT_SCALE
 from worker.contract import input_layout
 from worker.execute import Stage, StageContext, StageOutcome
 
@@ -226,7 +227,7 @@ class SegmentStage:
         record = resegment_job(
             trained,
             out,
-            scale=float(options.get("scale", 0.8)),
+            scale=float(options.get("scale", DEFAULT_SCALE)),
             matcher=str(options.get("matcher", "assignment")),
             semantic_masks=layout["semantic_masks"],
             vocabulary=layout["vocabulary"],
@@ -261,7 +262,7 @@ def pipeline_config(config: dict[str, Any]) -> Any:
     )
     cfg = cfg.seeded(int(options.get("seed", 0)))
     assign = dataclasses.replace(cfg.assign, mode=options.get("matcher", "assignment"))
-    return dataclasses.replace(cfg, scale=float(options.get("scale", 0.8)), assign=assign)
+    return dataclasses.replace(cfg, scale=float(options.get("scale", DEFAULT_SCALE)), assign=assign)
 
 
 def default_stages() -> list[Stage]:

@@ -87,8 +87,10 @@ class AffinityConfig:
 PAPER = AffinityConfig()
 """SAGA as run by DCSEG: 10k steps, 1000 rays, D = 32, K = 16 (8 per step)."""
 
-FAST = replace(PAPER, iterations=2000)
-"""Minutes on a CPU: 2000 steps, everything else as in the paper."""
+FAST = replace(PAPER, iterations=1000, lr=0.005)
+"""About 2 minutes on 2 CPU cores: 1000 steps at twice the paper's learning rate. Measured on the
+40-view default-noise synthetic scene (projection mIoU at scale 0.5): 1000 steps at lr 0.005
+83.2, 2000 steps at 0.0025 81.3 (twice the time), 1000 steps with 500 rays at 0.0025 74.4."""
 
 PRESETS: dict[str, AffinityConfig] = {"fast": FAST, "paper": PAPER}
 """Named configurations."""

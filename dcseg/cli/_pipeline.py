@@ -9,7 +9,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
-from dcseg.config import PipelineConfig, preset
+from dcseg.config import DEFAULT_SCALE, PipelineConfig, preset
 
 log = logging.getLogger("dcseg")
 
@@ -23,7 +23,9 @@ def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--matcher", choices=("assignment", "matching"), default="assignment", help="(assignment)"
     )
-    group.add_argument("--scale", type=float, default=0.8, help="clustering scale in [0, 1]")
+    group.add_argument(
+        "--scale", type=float, default=DEFAULT_SCALE, help="clustering scale in [0, 1]"
+    )
     group.add_argument("--seed", type=int, default=0, help="seed of every random choice")
     add_output_options(parser)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+import dcseg.blend
 from dcseg.blend import BlendWeights
 
 
@@ -69,6 +70,15 @@ def test_dominant_group_matches_dense_argmax() -> None:
     best, arg = dense.max(dim=-1)
     expected = torch.where(best >= 0.2, arg, torch.full_like(arg, -1))
     assert torch.equal(blend.dominant_group(group, 0.2), expected)
+
+
+def test_dominant_group_is_the_same_in_pixel_blocks(monkeypatch: pytest.MonkeyPatch) -> None:
+    blend = random_blend(9, 7, 30, seed=6)
+    group = torch.randint(-1, 5, (30,), generator=torch.Generator().manual_seed(1))
+    whole = blend.dominant_group(group, 0.1)
+    monkeypatch.setattr(dcseg.blend, "DENSE_BUDGET", 5 * 4)  # 4 pixels per block, 16 blocks
+    assert torch.equal(blend.dominant_group(group, 0.1), whole)
+    assert (whole >= 0).sum() > 10 and (whole == -1).sum() > 0
 
 
 def test_dominant_group_ties_and_none() -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -25,6 +24,7 @@ from tests.service.conftest import (
     KEY_A,
     TAR,
     TestClient,
+    free_port,
     make_settings,
     state_of,
     stop_process,
@@ -39,16 +39,10 @@ TINY = {
 }
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 @pytest.fixture
 def serve(tmp_path: Path) -> Iterator[str]:
     """``dcseg serve`` in a child process, with its default embedded worker; yields its URL."""
-    port = _free_port()
+    port = free_port()
     env = {
         **os.environ,
         "DCSEG_STORAGE_DIR": str(tmp_path / "data"),

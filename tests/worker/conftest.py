@@ -2,16 +2,25 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import signal
+import subprocess
+import sys
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import pytest
 
 from service.models import Job, Upload
 from service.settings import Settings
 from service.store import Store, new_id
-from tests.service.conftest import scene  # noqa: F401 (the shared synthetic capture fixture)
+from tests.service.conftest import (
+    scene,  # noqa: F401 (the shared synthetic capture fixture)
+    stop_process,
+)
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture
@@ -50,3 +59,34 @@ def add_job(store: Store, parent: str | None = None, options: dict[str, Any] | N
         event_seq=0,
     )
     return store.create_job(job).id
+
+
+@contextmanager
+def worker_processes(
+    env: Mapping[str, str], logs: Path
+) -> Iterator[Callable[[], subprocess.Popen[bytes]]]:
+    """A starter of real ``dcseg worker --pool solo`` processes with ``env``, each logging to
+    ``logs/worker<i>.log``; every process still running is stopped (SIGTERM) on exit."""
+    started: list[tuple[subprocess.Popen[bytes], IO[bytes]]] = []
+
+    def start() -> subprocess.Popen[bytes]:
+        log = (logs / f"worker{len(started)}.log").open("wb")
+        command = [sys.executable, "-m", "dcseg", "worker", "--pool", "solo", "--loglevel", "info"]
+        process = subprocess.Popen(
+            command, env=dict(env), cwd=REPO, stdout=log, stderr=subprocess.STDOUT
+        )
+        started.append((process, log))
+        return process
+
+    try:
+        yield start
+    finally:
+        for process, log in started:
+            if process.poll() is None:
+                stop_process(process, signal.SIGTERM, 15)
+            log.close()
+
+
+def worker_log(logs: Path, tail: int = 4000) -> str:
+    """The last ``tail`` characters of every worker log in ``logs`` (0 = all of it)."""
+    return "\n".join(p.read_text(errors="replace")[-tail:] for p in logs.glob("worker*.log"))

@@ -9,14 +9,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import signal
 import socket
 import subprocess
-import sys
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 from urllib.parse import urlparse
 
 import pytest
@@ -30,10 +28,10 @@ from tests.service.conftest import (
     TestClient,
     make_settings,
     state_of,
-    stop_process,
     tar_bytes,
     wait_for,
 )
+from tests.worker.conftest import worker_log, worker_processes
 from worker.contract import TASK_RUN_JOB, JobPaths
 
 REDIS_URL = os.environ.get("DCSEG_TEST_REDIS", "redis://127.0.0.1:6379/15")
@@ -96,26 +94,8 @@ def start_worker(
 ) -> Iterator[Callable[[], subprocess.Popen[bytes]]]:
     """Starts ``dcseg worker --pool solo`` processes; stops them after the test."""
     (tmp_path / "data").mkdir(exist_ok=True)
-    started: list[tuple[subprocess.Popen[bytes], IO[bytes]]] = []
-
-    def start() -> subprocess.Popen[bytes]:
-        log = (tmp_path / f"worker{len(started)}.log").open("wb")
-        command = [sys.executable, "-m", "dcseg", "worker", "--pool", "solo", "--loglevel", "info"]
-        process = subprocess.Popen(
-            command, env=celery_env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT
-        )
-        started.append((process, log))
-        return process
-
-    yield start
-    for process, log in started:
-        if process.poll() is None:
-            stop_process(process, signal.SIGTERM, 15)
-        log.close()
-
-
-def _worker_log(tmp_path: Path) -> str:
-    return "\n".join(p.read_text(errors="replace")[-3000:] for p in tmp_path.glob("worker*.log"))
+    with worker_processes(celery_env, tmp_path) as start:
+        yield start
 
 
 def test_job_survives_a_lost_queue_and_runs_in_a_worker_process(
@@ -153,12 +133,12 @@ def test_job_survives_a_lost_queue_and_runs_in_a_worker_process(
         with TestClient(create_app(settings)) as client:
 
             def finished() -> Any:
-                assert worker.poll() is None, _worker_log(tmp_path)
+                assert worker.poll() is None, worker_log(tmp_path, 3000)
                 job = client.get(f"/v1/jobs/{job_id}", headers=AUTH_A).json()
                 return job if job["status"] in ("succeeded", "failed", "canceled") else None
 
             job = wait_for(finished, timeout=120, every=0.25)
-            assert job["status"] == "succeeded", (job, _worker_log(tmp_path))
+            assert job["status"] == "succeeded", (job, worker_log(tmp_path, 3000))
             listing = client.get(f"/v1/jobs/{job_id}/artifacts", headers=AUTH_A).json()
             assert "reconstruct/scene.ply" in [a["name"] for a in listing["artifacts"]]
     finally:
@@ -206,7 +186,7 @@ def test_killed_worker_job_resumes_after_last_finished_stage(
             return job if job["status"] in ("succeeded", "failed", "canceled") else None
 
         job = wait_for(finished, timeout=120, every=0.2)
-        assert job["status"] == "succeeded", (job, _worker_log(tmp_path))
+        assert job["status"] == "succeeded", (job, worker_log(tmp_path, 3000))
         state = state_of(client)
         record = state.store.get_job(job_id)
         assert record is not None and record.attempts == 2

@@ -12,14 +12,11 @@ import hashlib
 import json
 import os
 import shutil
-import signal
-import socket
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import pytest
 import redis
@@ -30,12 +27,13 @@ from tests.service.conftest import (
     AUTH_A,
     TAR,
     TestClient,
+    free_port,
     make_settings,
     state_of,
-    stop_process,
     tar_bytes,
     wait_for,
 )
+from tests.worker.conftest import worker_log, worker_processes
 from worker.contract import TERMINAL, JobPaths
 
 REPO = Path(__file__).resolve().parents[2]
@@ -45,19 +43,12 @@ TINY = {"reconstruct": {"iterations": 2, "holdout": 0}, "affinity": {"iterations
 pytestmark = pytest.mark.integration
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
 class PrivateRedis:
     """A ``redis-server`` subprocess without persistence; ``restart()`` loses all its data."""
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
-        self.port = _free_port()
+        self.port = free_port()
         self.url = f"redis://127.0.0.1:{self.port}/0"
         self.process: subprocess.Popen[bytes] | None = None
         self.client = redis.Redis(port=self.port, socket_timeout=2)
@@ -115,25 +106,8 @@ def start_worker(
         "DCSEG_DEVICE": "cpu",
         "DCSEG_HEARTBEAT_S": "0.5",
     }
-    started: list[tuple[subprocess.Popen[bytes], IO[bytes]]] = []
-
-    def start() -> subprocess.Popen[bytes]:
-        log = (tmp_path / f"worker{len(started)}.log").open("wb")
-        command = [sys.executable, "-m", "dcseg", "worker", "--pool", "solo", "--loglevel", "info"]
-        process = subprocess.Popen(command, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
-        started.append((process, log))
-        return process
-
-    yield start
-    for process, log in started:
-        if process.poll() is None:
-            stop_process(process, signal.SIGTERM, 15)
-        log.close()
-
-
-def _worker_log(tmp_path: Path, tail: int = 4000) -> str:
-    """The last ``tail`` characters of every worker log (0 = all of it)."""
-    return "\n".join(p.read_text(errors="replace")[-tail:] for p in tmp_path.glob("worker*.log"))
+    with worker_processes(env, tmp_path) as start:
+        yield start
 
 
 def _submit(client: Any, upload_id: str, options: dict[str, Any]) -> str:
@@ -191,7 +165,7 @@ def test_redis_restarts_lose_no_job(private_redis, start_worker, scene, tmp_path
 
         def ended(job_ids: list[str]) -> Callable[[], bool]:
             def check() -> bool:
-                assert worker.poll() is None, _worker_log(tmp_path)
+                assert worker.poll() is None, worker_log(tmp_path)
                 jobs = [client.get(f"/v1/jobs/{j}", headers=AUTH_A).json() for j in job_ids]
                 return all(job["status"] in TERMINAL for job in jobs)
 
@@ -215,13 +189,13 @@ def test_redis_restarts_lose_no_job(private_redis, start_worker, scene, tmp_path
         time.sleep(1.0)
         fourth = _submit(client, upload_id, TINY)
         wait_for(ended([third, fourth]), timeout=180, every=0.25)
-        assert worker.poll() is None, _worker_log(tmp_path)
-        assert "Connection to broker lost" in _worker_log(tmp_path, tail=0)  # it reconnected
+        assert worker.poll() is None, worker_log(tmp_path)
+        assert "Connection to broker lost" in worker_log(tmp_path, tail=0)  # it reconnected
         for job_id in (third, fourth):
             _assert_succeeded_with_intact_artifacts(client, job_id, settings.storage_dir)
 
         store = state_of(client).store
         for job_id in [*first, third, fourth]:
             record = store.get_job(job_id)
-            assert record is not None and record.attempts == 1, (job_id, _worker_log(tmp_path))
+            assert record is not None and record.attempts == 1, (job_id, worker_log(tmp_path))
         assert private_redis.client.exists(marker_key(QUEUE))

@@ -131,6 +131,15 @@ def wait_for(predicate: Callable[[], Any], timeout: float = 60.0, every: float =
     raise AssertionError(f"condition not met within {timeout} s")
 
 
+def reachable(host: str, port: int) -> bool:
+    """Whether a TCP connection to ``host:port`` opens within 2 s (a service is listening)."""
+    try:
+        with socket.create_connection((host, port), 2):
+            return True
+    except OSError:
+        return False
+
+
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that was free a moment ago."""
     with socket.socket() as sock:

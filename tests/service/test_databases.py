@@ -8,7 +8,6 @@ skip with the reason otherwise.
 from __future__ import annotations
 
 import os
-import socket
 import threading
 import uuid
 from collections.abc import Iterator
@@ -22,7 +21,15 @@ from sqlalchemy.engine import make_url
 from service.main import create_app
 from service.models import SCHEMA_VERSION, Job, SchemaVersion, Upload
 from service.store import Cursor, SchemaError, Store, new_id
-from tests.service.conftest import AUTH_A, AUTH_B, TAR, TestClient, make_settings, state_of
+from tests.service.conftest import (
+    AUTH_A,
+    AUTH_B,
+    TAR,
+    TestClient,
+    make_settings,
+    reachable,
+    state_of,
+)
 from tests.worker.fakes import FakeStage
 from worker.execute import execute_job
 
@@ -33,11 +40,7 @@ ADMIN_URL = os.environ.get(
 
 def _reachable(url: str) -> bool:
     parsed = make_url(url)
-    try:
-        with socket.create_connection((parsed.host or "127.0.0.1", parsed.port or 5432), 2):
-            return True
-    except OSError:
-        return False
+    return reachable(parsed.host or "127.0.0.1", parsed.port or 5432)
 
 
 @pytest.fixture(scope="module")

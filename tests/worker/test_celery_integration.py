@@ -9,7 +9,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import socket
 import subprocess
 import uuid
 from collections.abc import Callable, Iterator
@@ -27,6 +26,7 @@ from tests.service.conftest import (
     TAR,
     TestClient,
     make_settings,
+    reachable,
     state_of,
     tar_bytes,
     wait_for,
@@ -35,18 +35,13 @@ from tests.worker.conftest import worker_log, worker_processes
 from worker.contract import TASK_RUN_JOB, JobPaths
 
 REDIS_URL = os.environ.get("DCSEG_TEST_REDIS", "redis://127.0.0.1:6379/15")
-REPO = Path(__file__).resolve().parents[2]
 
 pytestmark = pytest.mark.integration
 
 
 def _redis_reachable() -> bool:
     parsed = urlparse(REDIS_URL)
-    try:
-        with socket.create_connection((parsed.hostname or "127.0.0.1", parsed.port or 6379), 2):
-            return True
-    except OSError:
-        return False
+    return reachable(parsed.hostname or "127.0.0.1", parsed.port or 6379)
 
 
 @pytest.fixture

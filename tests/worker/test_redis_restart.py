@@ -36,7 +36,6 @@ from tests.service.conftest import (
 from tests.worker.conftest import worker_log, worker_processes
 from worker.contract import TERMINAL, JobPaths
 
-REPO = Path(__file__).resolve().parents[2]
 QUEUE = "gpu"
 TINY = {"reconstruct": {"iterations": 2, "holdout": 0}, "affinity": {"iterations": 5, "rays": 64}}
 

@@ -14,6 +14,7 @@ from dcseg.render.projection import Splats, project
 from dcseg.render.torch_renderer import rasterize_reference
 
 Rasterizer = Callable[[Splats, Tensor, int, int], Tensor]
+Projector = Callable[[Gaussians, Camera], Splats]
 
 
 def render(
@@ -53,24 +54,23 @@ def render(
 
         image, alpha, depth = render_gsplat(gaussians, values, camera)
         return _with_background(RenderOutput(image, alpha, depth), background)
-    return _with_background(
-        _render_splats(gaussians, values, camera, _rasterizer(name)), background
-    )
+    return _with_background(_render_splats(gaussians, values, camera, name), background)
 
 
-def _rasterizer(name: str) -> Rasterizer:
+def _stages(name: str) -> tuple[Projector, Rasterizer]:
+    """The projection and rasterizer of a backend: numba for ``cpu``, PyTorch otherwise."""
     if name == "cpu":
+        from dcseg.render.cpu_projection import project_cpu
         from dcseg.render.cpu_renderer import rasterize_cpu
 
-        return rasterize_cpu
-    return rasterize_reference
+        return project_cpu, rasterize_cpu
+    return project, rasterize_reference
 
 
-def _render_splats(
-    gaussians: Gaussians, values: Tensor, camera: Camera, rasterizer: Rasterizer
-) -> RenderOutput:
+def _render_splats(gaussians: Gaussians, values: Tensor, camera: Camera, name: str) -> RenderOutput:
     """Project, then composite ``[values, z, 1]`` so depth and alpha come out of one pass."""
-    splats = project(gaussians, camera)
+    projector, rasterizer = _stages(name)
+    splats = projector(gaussians, camera)
     ones = torch.ones_like(splats.depths)[:, None]
     picked = values[splats.index].to(splats.depths.dtype)
     stacked = torch.cat([picked, splats.depths[:, None], ones], dim=1)

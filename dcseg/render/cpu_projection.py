@@ -1,0 +1,92 @@
+"""The ``cpu`` backend's projection: :func:`dcseg.render.projection.project` in numba kernels.
+
+Same contract and results as the PyTorch projection (which stays the reference backend's and
+the test oracle), but one fused pass per Gaussian forward and backward instead of ~200
+whole-array operations each way: at 120k Gaussians this is the difference between ~170 ms and
+a few ms per training step on two cores.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from dcseg.gaussians import Gaussians
+from dcseg.render import numba_projection as npj
+from dcseg.render.camera import Camera
+from dcseg.render.projection import Splats, tile_grid
+
+
+def project_cpu(gaussians: Gaussians, camera: Camera) -> Splats:
+    """Project, cull and depth-sort Gaussians for one camera (differentiable, CPU tensors)."""
+    outputs = ProjectGaussians.apply(  # type: ignore[no-untyped-call]
+        gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, camera
+    )
+    means2d, conics, opacities, depths, index, tile_min, tile_max = outputs
+    return Splats(means2d, conics, opacities, depths, index, tile_min, tile_max)
+
+
+def _camera_arrays(camera: Camera) -> tuple[np.ndarray[Any, Any], np.ndarray[Any, Any]]:
+    """``view [4, 4]`` (world-to-camera) and ``[fx, fy, cx, cy, W, H]`` as float64 arrays."""
+    view = camera.viewmat().detach().cpu().to(torch.float64).numpy()
+    k = camera.K.detach().cpu().to(torch.float64)
+    intr = np.array(
+        [float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]),
+         float(camera.width), float(camera.height)]
+    )  # fmt: skip
+    return np.ascontiguousarray(view), intr
+
+
+def _numpy(t: Tensor) -> np.ndarray[Any, Any]:
+    return np.ascontiguousarray(t.detach().cpu().numpy())
+
+
+class ProjectGaussians(torch.autograd.Function):
+    """Differentiable projection of Gaussians to depth-sorted splats with the numba kernels."""
+
+    @staticmethod
+    def forward(
+        ctx: Any, means: Tensor, quats: Tensor, log_scales: Tensor, logits: Tensor, camera: Camera
+    ) -> tuple[Tensor, ...]:
+        """``means2d, conics, opacities, depths`` (differentiable) and ``index, tile_min/max``."""
+        dtype = means.dtype
+        view, intr = _camera_arrays(camera)
+        arrays = [_numpy(t) for t in (means, quats, log_scales, logits)]
+        depths, means2d, conics, opac, radii, visible = npj.project_all(
+            arrays[0], arrays[1], arrays[2], arrays[3], view, intr
+        )
+        keep = np.flatnonzero(visible)
+        sort_keys = depths[keep].astype(arrays[0].dtype)  # ties as in the input precision
+        index = keep[np.argsort(sort_keys, kind="stable")]
+        tile_min, tile_max = npj.tile_rects(
+            means2d[index], radii[index], *tile_grid(camera.width, camera.height)
+        )
+        ctx.camera = (view, intr)
+        index_t = torch.from_numpy(index)
+        ctx.save_for_backward(means, quats, log_scales, logits, index_t)
+        out = [torch.from_numpy(a[index]).to(dtype) for a in (means2d, conics, opac, depths)]
+        tiles = torch.from_numpy(tile_min), torch.from_numpy(tile_max)
+        ctx.mark_non_differentiable(index_t, *tiles)
+        return (*out, index_t, *tiles)
+
+    @staticmethod
+    def backward(ctx: Any, *grads: Tensor | None) -> tuple[Tensor | None, ...]:
+        """Gradients for means, quats, log scales and opacity logits."""
+        means, quats, log_scales, logits, index = ctx.saved_tensors
+        view, intr = ctx.camera
+        m = index.shape[0]
+        shapes = ((m, 2), (m, 3), (m,), (m,))
+        g = [
+            np.zeros(shape) if grad is None else _numpy(grad.to(torch.float64))
+            for grad, shape in zip(grads[:4], shapes, strict=True)
+        ]
+        arrays = [_numpy(t) for t in (means, quats, log_scales, logits)]
+        out = npj.project_backward(
+            _numpy(index), arrays[0], arrays[1], arrays[2], arrays[3], view, intr,
+            g[0], g[1], g[2], g[3],
+        )  # fmt: skip
+        result = [torch.from_numpy(a).to(means.dtype) for a in out]
+        return (*result, None)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import warnings
 from typing import Any
 
+import numba
 import numpy as np
 import torch
 from numba.core.errors import NumbaPerformanceWarning
@@ -48,8 +49,11 @@ class RasterizeSplats(torch.autograd.Function):
         )
         with _quiet():
             tiles_x = tile_grid(width, height)[0]
-            image, t_final, n_contrib = nk.forward(m, k, o, v, off, idx, width, height, tiles_x)
-        ctx.size = size
+            shares = nk.balanced_tiles(off, numba.get_num_threads())
+            image, t_final, n_contrib = nk.forward(
+                m, k, o, v, off, idx, width, height, tiles_x, *shares
+            )
+        ctx.size, ctx.shares = size, shares
         ctx.save_for_backward(
             means2d, conics, opacities, values, offsets, ids,
             torch.from_numpy(t_final), torch.from_numpy(n_contrib),
@@ -67,8 +71,9 @@ class RasterizeSplats(torch.autograd.Function):
         grad = _numpy(grad_image.to(values.dtype))
         with _quiet():
             per_isect = nk.backward(
-                m, k, o, v, off, idx, _numpy(t_final), _numpy(n_contrib), grad, tiles_x
-            )
+                m, k, o, v, off, idx, _numpy(t_final), _numpy(n_contrib), grad, tiles_x,
+                *ctx.shares,
+            )  # fmt: skip
         sums = torch.zeros(values.shape[0], per_isect.shape[1], dtype=values.dtype)
         sums.index_add_(0, ids.long(), torch.from_numpy(per_isect))
         return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 6:], None, None, None

@@ -1,11 +1,12 @@
 """numba kernels of the ``cpu`` backend: tile binning, forward and analytic backward.
 
 The loops are those of the 3DGS / gsplat CUDA rasterizer, reorganised for CPU cores: one
-``prange`` iteration per 16x16 tile; inside a tile the *splats* are the outer loop (front to
-back in the forward, back to front in the backward) and only the pixels of the splat's
-alpha >= 1/255 bounding box are visited, with per-pixel state (transmittance, done flag) kept in
-small tile-local arrays. Skipping pixels outside that box is exact: there the alpha test would
-reject the splat anyway.
+``prange`` iteration per worker thread, each compositing its share of the 16x16 tiles (shares
+balanced by the tiles' list lengths, see :func:`balanced_tiles`); inside a tile the *splats*
+are the outer loop (front to back in the forward, back to front in the backward) and only the
+pixels of the splat's alpha >= 1/255 bounding box are visited, with per-pixel state
+(transmittance, done flag) kept in small tile-local arrays. Skipping pixels outside that box is
+exact: there the alpha test would reject the splat anyway.
 
 Backward gradients are written per (tile, splat) intersection, never shared between tiles, so
 the parallel loop has no races and the result is deterministic; the caller sums them per splat.
@@ -68,6 +69,33 @@ def bin_tiles(tile_min: Array, tile_max: Array, n_tiles: int, tiles_x: int) -> t
 
 
 @_jit(parallel=False)
+def balanced_tiles(offsets: Array, workers: int) -> tuple[Array, Array]:
+    """Split the tiles among ``workers`` threads with near-equal work (longest first, greedy).
+
+    A tile's cost is its splat-list length plus a constant for its pixels. A plain ``prange``
+    over tiles hands each thread one contiguous block of rows, and the busier half of an image
+    then keeps one core working while the other idles.
+
+    Returns:
+        ``order [n_tiles]`` int64 and ``starts [workers + 1]`` int64: worker w composites tiles
+        ``order[starts[w]:starts[w + 1]]``.
+    """
+    n_tiles = offsets.shape[0] - 1
+    cost = (offsets[1:] - offsets[:-1]) + 32
+    owner = np.empty(n_tiles, dtype=np.int64)
+    load = np.zeros(workers, dtype=np.int64)
+    for tile in np.argsort(-cost, kind="mergesort"):
+        w = np.argmin(load)
+        owner[tile] = w
+        load[w] += cost[tile]
+    order = np.argsort(owner, kind="mergesort")
+    starts = np.zeros(workers + 1, dtype=np.int64)
+    for tile in range(n_tiles):
+        starts[owner[tile] + 1] += 1
+    return order, np.cumsum(starts)
+
+
+@_jit(parallel=False)
 def _pixel_box(
     mx: float, my: float, a: float, b: float, c: float, opacity: float, box: Array
 ) -> bool:
@@ -110,8 +138,10 @@ def forward(
     width: int,
     height: int,
     tiles_x: int,
+    order: Array,
+    starts: Array,
 ) -> tuple[Array, Array, Array]:
-    """Front-to-back alpha compositing.
+    """Front-to-back alpha compositing; ``order`` and ``starts`` from :func:`balanced_tiles`.
 
     Returns:
         ``image [H, W, C]``, final transmittance ``[H, W]`` and the number of tile-list entries
@@ -120,10 +150,12 @@ def forward(
     out = np.zeros((height, width, values.shape[1]), dtype=values.dtype)
     t_final = np.ones((height, width), dtype=values.dtype)
     n_contrib = np.zeros((height, width), dtype=np.int32)
-    for tile in prange(offsets.shape[0] - 1):
-        _forward_tile(
-            tile, means2d, conics, opacities, values, offsets, ids, tiles_x, out, t_final, n_contrib
-        )
+    for worker in prange(starts.shape[0] - 1):
+        for tile in order[starts[worker] : starts[worker + 1]]:
+            _forward_tile(
+                tile, means2d, conics, opacities, values, offsets, ids, tiles_x, out, t_final,
+                n_contrib,
+            )  # fmt: skip
     return out, t_final, n_contrib
 
 
@@ -229,29 +261,22 @@ def backward(
     n_contrib: Array,
     grad_out: Array,
     tiles_x: int,
+    order: Array,
+    starts: Array,
 ) -> Array:
-    """Gradients of ``sum(grad_out * image)`` per tile-list entry.
+    """Gradients of ``sum(grad_out * image)`` per tile-list entry (tiles shared as in forward).
 
     Returns:
         ``[n_isect, 6 + C]``: d/d(mean x, mean y, conic a, b, c, opacity, values...) for each
         (tile, splat) entry of ``ids``; the caller sums rows by splat id.
     """
     grads = np.zeros((ids.shape[0], 6 + values.shape[1]), dtype=values.dtype)
-    for tile in prange(offsets.shape[0] - 1):
-        _backward_tile(
-            tile,
-            means2d,
-            conics,
-            opacities,
-            values,
-            offsets,
-            ids,
-            t_final,
-            n_contrib,
-            grad_out,
-            tiles_x,
-            grads,
-        )
+    for worker in prange(starts.shape[0] - 1):
+        for tile in order[starts[worker] : starts[worker + 1]]:
+            _backward_tile(
+                tile, means2d, conics, opacities, values, offsets, ids, t_final, n_contrib,
+                grad_out, tiles_x, grads,
+            )  # fmt: skip
     return grads
 
 
@@ -293,22 +318,27 @@ def _backward_tile(
         ):  # fmt: skip
             _backward_splat(
                 k - start, g, box, x0, y0, means2d, conics, opacities, values, grad_out,
-                trans, later, last, grads[k],
+                trans, later, last, grads, k,
             )  # fmt: skip
 
 
 @_jit(parallel=False)
-def _dot(u: Array, v: Array, n: int) -> float:
-    """``u . v`` with four independent partial sums (instruction-level parallelism)."""
+def _dot(values: Array, g: int, grad_out: Array, py: int, px: int) -> float:
+    """``values[g] . grad_out[py, px]`` with four independent partial sums.
+
+    Takes whole arrays and indices: row views (``values[g]``) would update the shared arrays'
+    reference counts atomically from every thread, millions of times per image.
+    """
+    n = values.shape[1]
     s0 = s1 = s2 = s3 = 0.0
     head = n - n % 4
     for k in range(0, head, 4):
-        s0 += u[k] * v[k]
-        s1 += u[k + 1] * v[k + 1]
-        s2 += u[k + 2] * v[k + 2]
-        s3 += u[k + 3] * v[k + 3]
+        s0 += values[g, k] * grad_out[py, px, k]
+        s1 += values[g, k + 1] * grad_out[py, px, k + 1]
+        s2 += values[g, k + 2] * grad_out[py, px, k + 2]
+        s3 += values[g, k + 3] * grad_out[py, px, k + 3]
     for k in range(head, n):
-        s0 += u[k] * v[k]
+        s0 += values[g, k] * grad_out[py, px, k]
     return (s0 + s1) + (s2 + s3)
 
 
@@ -327,13 +357,15 @@ def _backward_splat(
     trans: Array,
     later: Array,
     last: Array,
-    acc: Array,
+    grads: Array,
+    row: int,
 ) -> None:
-    """Accumulate one splat's gradients over the pixels of ``box`` into ``acc`` [6 + C]."""
+    """Accumulate one splat's gradients over the pixels of ``box`` into ``grads[row]``."""
     channels = values.shape[1]
     mx, my = means2d[g, 0], means2d[g, 1]
     a, b, c = conics[g, 0], conics[g, 1], conics[g, 2]
     opacity = opacities[g]
+    g_mx = g_my = g_a = g_b = g_c = g_o = 0.0  # local sums: no store per pixel
     for py in range(box[2], box[3] + 1):
         dy = my - py
         for px in range(box[0], box[1] + 1):
@@ -351,17 +383,19 @@ def _backward_splat(
             t_before = trans[i, j] * inv
             trans[i, j] = t_before
             weight = alpha * t_before
-            v_dot_g = _dot(values[g], grad_out[py, px], channels)
+            v_dot_g = _dot(values, g, grad_out, py, px)
             for ch in range(channels):
-                acc[6 + ch] += weight * grad_out[py, px, ch]
+                grads[row, 6 + ch] += weight * grad_out[py, px, ch]
             d_alpha = t_before * v_dot_g - later[i, j] * inv
             later[i, j] += weight * v_dot_g
             if raw > ALPHA_MAX:
                 continue  # clamped: alpha does not depend on the splat here
             d_sigma = -raw * d_alpha
-            acc[0] += (a * dx + b * dy) * d_sigma
-            acc[1] += (b * dx + c * dy) * d_sigma
-            acc[2] += 0.5 * dx * dx * d_sigma
-            acc[3] += dx * dy * d_sigma
-            acc[4] += 0.5 * dy * dy * d_sigma
-            acc[5] += gauss * d_alpha
+            g_mx += (a * dx + b * dy) * d_sigma
+            g_my += (b * dx + c * dy) * d_sigma
+            g_a += 0.5 * dx * dx * d_sigma
+            g_b += dx * dy * d_sigma
+            g_c += 0.5 * dy * dy * d_sigma
+            g_o += gauss * d_alpha
+    grads[row, 0], grads[row, 1], grads[row, 2] = g_mx, g_my, g_a
+    grads[row, 3], grads[row, 4], grads[row, 5] = g_b, g_c, g_o

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from torch import Tensor
 
 from dcseg.gaussians import Gaussians
 from dcseg.render import Camera, RenderOutput, render
+from dcseg.render.numba_kernels import balanced_tiles
 from tests.dcseg.render import scenes
 
 NAMES = ("means", "quats", "log_scales", "opacity_logits", "values")
@@ -97,3 +99,17 @@ def test_gradcheck(backend: str) -> None:
     assert torch.autograd.gradcheck(
         fn, tuple(inputs), eps=1e-6, atol=1e-6, rtol=1e-5, fast_mode=True
     )
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3])
+def test_balanced_tiles_cover_every_tile_once(workers: int) -> None:
+    """Each tile goes to exactly one worker; loads differ by at most the largest tile's cost."""
+
+    lengths = np.random.default_rng(0).integers(0, 3000, size=300)
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    order, starts = balanced_tiles(offsets, workers)
+    assert sorted(order.tolist()) == list(range(300))
+    assert starts[0] == 0 and starts[-1] == 300 and len(starts) == workers + 1
+    bounds = zip(starts[:-1], starts[1:], strict=True)
+    loads = [int((lengths[order[a:b]] + 32).sum()) for a, b in bounds]
+    assert max(loads) - min(loads) <= int(lengths.max()) + 32

@@ -110,10 +110,9 @@ class BlendWeights:
     def dominant_group(self, group: Tensor, min_weight: float) -> Tensor:
         """Per pixel, the group with the largest accumulated weight, if at least ``min_weight``.
 
-        One pass for all groups over blocks of pixels: each block accumulates into a dense
-        ``[pixels, K]`` table of at most :data:`DENSE_BUDGET` entries (bounded memory, never
-        ``[H, W, K]``; 25x faster than sorting (pixel, group) keys at K = 240). Ties go to the
-        lower group index; pixels without a contribution from any group stay -1.
+        One pass for all groups, never an ``[H, W, K]`` table: on the CPU a numba kernel
+        (O(nnz), ~10 ms for 2M contributions), elsewhere :meth:`dominant_group_blocks`. Ties go
+        to the lower group index; pixels without a contribution from any group stay -1.
 
         Args:
             group: ``[N]`` int64 group (e.g. cluster) of every Gaussian, ``-1`` = none.
@@ -122,6 +121,21 @@ class BlendWeights:
         Returns:
             ``[H, W]`` int64 group per pixel, ``-1`` = none.
         """
+        if self.ids.device.type != "cpu":
+            return self.dominant_group_blocks(group, min_weight)
+        from dcseg.blend_kernels import dominant_group
+
+        groups = group.detach().cpu().long().numpy()
+        n_groups = max(int(groups.max(initial=-1)) + 1, 1)
+        out = dominant_group(
+            self.offsets.numpy(), self.ids.numpy(), self.weights.numpy(), groups, n_groups,
+            float(min_weight),
+        )  # fmt: skip
+        return torch.from_numpy(out).reshape(self.height, self.width)
+
+    def dominant_group_blocks(self, group: Tensor, min_weight: float) -> Tensor:
+        """:meth:`dominant_group` in PyTorch (any device): blocks of pixels accumulate into a
+        dense ``[pixels, K]`` table of at most :data:`DENSE_BUDGET` entries (bounded memory)."""
         n_pixels = self.height * self.width
         out = torch.full((n_pixels,), -1, dtype=torch.int64, device=self.ids.device)
         g = group.to(self.ids.device)[self.ids.long()]
@@ -142,18 +156,4 @@ class BlendWeights:
             best, winner = table.max(dim=1)  # first maximum = lowest group index
             claimed = (best >= min_weight) & (best > 0)
             out[start:stop] = torch.where(claimed, winner, out[start:stop])
-        return out.reshape(self.height, self.width)
-        n_groups = int(g.max()) + 1
-        keys = self.rows()[keep] * n_groups + g[keep]
-        unique, inverse = torch.unique(keys, return_inverse=True)
-        sums = torch.zeros(unique.shape[0], dtype=self.weights.dtype, device=self.ids.device)
-        sums = sums.index_add(0, inverse, self.weights[keep])
-        pixel, members = unique // n_groups, unique % n_groups
-        best = torch.zeros(n_pixels, dtype=sums.dtype, device=sums.device)
-        best = best.scatter_reduce(0, pixel, sums, reduce="amax")
-        win = (sums >= best[pixel]) & (sums >= min_weight)
-        first = torch.full((n_pixels,), n_groups, dtype=torch.int64, device=sums.device)
-        first = first.scatter_reduce(0, pixel[win], members[win], reduce="amin")
-        claimed = first < n_groups
-        out[claimed] = first[claimed]
         return out.reshape(self.height, self.width)

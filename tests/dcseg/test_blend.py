@@ -63,13 +63,19 @@ def test_nbytes_counts_storage() -> None:
     assert blend.nbytes() == 8 * 10 + 8 * blend.nnz + 4 * blend.nnz
 
 
-def test_dominant_group_matches_dense_argmax() -> None:
+DOMINANT = ("dominant_group", "dominant_group_blocks")
+"""The numba (CPU) implementation and the PyTorch one used on other devices."""
+
+
+@pytest.mark.parametrize("method", DOMINANT)
+def test_dominant_group_matches_dense_argmax(method: str) -> None:
     blend = random_blend(9, 7, 30, seed=5)
     group = torch.randint(-1, 4, (30,), generator=torch.Generator().manual_seed(0))
     dense = blend.accumulate_groups(group, 4)
     best, arg = dense.max(dim=-1)
     expected = torch.where(best >= 0.2, arg, torch.full_like(arg, -1))
-    assert torch.equal(blend.dominant_group(group, 0.2), expected)
+    assert torch.equal(getattr(blend, method)(group, 0.2), expected)
+    assert (expected >= 0).sum() > 10 and (expected == -1).sum() > 0
 
 
 def test_dominant_group_is_the_same_in_pixel_blocks(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -77,12 +83,14 @@ def test_dominant_group_is_the_same_in_pixel_blocks(monkeypatch: pytest.MonkeyPa
     group = torch.randint(-1, 5, (30,), generator=torch.Generator().manual_seed(1))
     whole = blend.dominant_group(group, 0.1)
     monkeypatch.setattr(dcseg.blend, "DENSE_BUDGET", 5 * 4)  # 4 pixels per block, 16 blocks
-    assert torch.equal(blend.dominant_group(group, 0.1), whole)
+    assert torch.equal(blend.dominant_group_blocks(group, 0.1), whole)
     assert (whole >= 0).sum() > 10 and (whole == -1).sum() > 0
 
 
-def test_dominant_group_ties_and_none() -> None:
+@pytest.mark.parametrize("method", DOMINANT)
+def test_dominant_group_ties_and_none(method: str) -> None:
     offsets = torch.tensor([0, 2, 3, 3])
     blend = BlendWeights(1, 3, offsets, torch.tensor([0, 1, 2]), torch.tensor([0.5, 0.5, 0.9]))
-    assert blend.dominant_group(torch.tensor([1, 0, -1]), 0.1).tolist() == [[0, -1, -1]]
-    assert blend.dominant_group(torch.tensor([-1, -1, -1]), 0.1).tolist() == [[-1, -1, -1]]
+    dominant = getattr(blend, method)
+    assert dominant(torch.tensor([1, 0, -1]), 0.1).tolist() == [[0, -1, -1]]
+    assert dominant(torch.tensor([-1, -1, -1]), 0.1).tolist() == [[-1, -1, -1]]

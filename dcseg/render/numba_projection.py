@@ -81,15 +81,21 @@ def _clamp_bounds(intr: Array) -> tuple[float, float, float, float]:
 
 
 @_jit(parallel=False)
-def _splat_matrices(
-    means: Array, quats: Array, log_scales: Array, i: int, view: Array, intr: Array, work: Array
-) -> None:
-    """Fill the rows ``P`` (camera-space mean), ``JW = J W [2, 3]``, ``M = R S [3, 3]`` and
-    ``A = J W R S [2, 3]`` of ``work`` for Gaussian ``i``."""
+def _camera_point(means: Array, i: int, view: Array, work: Array) -> float:
+    """Fill row ``P`` with Gaussian ``i``'s camera-space mean; return its depth z."""
     for r in range(3):
         work[P, r] = view[r, 3]
         for c in range(3):
             work[P, r] += view[r, c] * means[i, c]
+    return float(work[P, 2])
+
+
+@_jit(parallel=False)
+def _splat_matrices(
+    quats: Array, log_scales: Array, i: int, view: Array, intr: Array, work: Array
+) -> None:
+    """Fill the rows ``JW = J W [2, 3]``, ``M = R S [3, 3]`` and ``A = J W R S [2, 3]`` of
+    ``work`` for Gaussian ``i`` (row ``P`` must hold its camera-space mean)."""
     fx, fy = intr[0], intr[1]
     lo_x, hi_x, lo_y, hi_y = _clamp_bounds(intr)
     x, y, z = work[P, 0], work[P, 1], work[P, 2]
@@ -143,9 +149,11 @@ def project_all(
     for chunk in prange((n + CHUNK - 1) // CHUNK):
         work = np.empty((WORK_ROWS, 3))
         for i in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-            _splat_matrices(means, quats, log_scales, i, view, intr, work)
-            z = work[P, 2]
+            z = _camera_point(means, i, view, work)
             depths[i] = z
+            if not z >= NEAR_PLANE:  # culled (also NaN): skip the covariance
+                continue
+            _splat_matrices(quats, log_scales, i, view, intr, work)
             means2d[i, 0] = intr[0] * work[P, 0] / z + intr[2]
             means2d[i, 1] = intr[1] * work[P, 1] / z + intr[3]
             sxx, sxy, syy = _covariance(work)
@@ -224,7 +232,8 @@ def project_backward(
         work = np.empty((WORK_ROWS, 3))
         for k in range(chunk * CHUNK, min(m, (chunk + 1) * CHUNK)):
             i = index[k]
-            _splat_matrices(means, quats, log_scales, i, view, intr, work)
+            _camera_point(means, i, view, work)
+            _splat_matrices(quats, log_scales, i, view, intr, work)
             _covariance_grad(work, grad_conics, k)
             _jacobian_grad(work, view, intr, grad_means2d, k)
             work[GP, 2] += grad_depths[k]

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -126,11 +127,14 @@ class BlendWeights:
         from dcseg.blend_kernels import dominant_group
 
         groups = group.detach().cpu().long().numpy()
+        largest = int(self.ids.max()) if self.nnz else -1
+        if groups.shape[0] <= largest:
+            raise IndexError(f"group has {groups.shape[0]} entries but ids go up to {largest}")
         n_groups = max(int(groups.max(initial=-1)) + 1, 1)
-        out = dominant_group(
-            self.offsets.numpy(), self.ids.numpy(), self.weights.numpy(), groups, n_groups,
-            float(min_weight),
-        )  # fmt: skip
+        weights = self.weights.detach().numpy()
+        floor = float(np.asarray(min_weight, dtype=weights.dtype))  # compared as PyTorch does
+        offsets, ids = self.offsets.numpy(), self.ids.numpy()
+        out = dominant_group(offsets, ids, weights, groups, n_groups, floor)
         return torch.from_numpy(out).reshape(self.height, self.width)
 
     def dominant_group_blocks(self, group: Tensor, min_weight: float) -> Tensor:

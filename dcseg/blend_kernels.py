@@ -31,14 +31,15 @@ def dominant_group(
         weights: ``[nnz]`` blending weight of each contribution.
         group: ``[N]`` int64 group of every Gaussian, -1 = none.
         n_groups: number of groups K (every ``group`` value is below it).
-        min_weight: smallest summed weight that claims a pixel (and it must be > 0).
+        min_weight: smallest summed weight that claims a pixel (and it must be > 0), rounded
+            to the weights' precision by the caller.
 
     Ties go to the lower group index.
     """
     n_pixels = offsets.shape[0] - 1
     out = np.full(n_pixels, -1, dtype=np.int64)
     for chunk in prange((n_pixels + PIXEL_CHUNK - 1) // PIXEL_CHUNK):
-        acc = np.zeros(n_groups, dtype=np.float64)
+        acc = np.zeros(n_groups, dtype=weights.dtype)  # sums in the weights' precision
         stamp = np.full(n_groups, -1, dtype=np.int64)  # last pixel that touched each group
         touched = np.empty(n_groups, dtype=np.int64)
         for p in range(chunk * PIXEL_CHUNK, min(n_pixels, (chunk + 1) * PIXEL_CHUNK)):

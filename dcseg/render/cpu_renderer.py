@@ -1,6 +1,6 @@
 """The ``cpu`` backend: numba kernels wrapped in a ``torch.autograd.Function``.
 
-Projection stays in PyTorch (autograd differentiates it); the Function maps
+Projection runs in :mod:`dcseg.render.cpu_projection`; the Function here maps
 (means2d [M, 2], conics [M, 3], opacities [M], values [M, C]) to an ``[H, W, C]`` image. The
 forward saves only its inputs, the tile lists, the final transmittance ``[H, W]`` and the
 per-pixel count of tile-list entries up to the last contributor ``[H, W]``; the backward
@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from numba.core.errors import NumbaPerformanceWarning
 from torch import Tensor
+from torch.autograd.function import once_differentiable
 
 from dcseg.render import numba_kernels as nk
 from dcseg.render.projection import Splats, tile_grid
@@ -61,6 +62,7 @@ class RasterizeSplats(torch.autograd.Function):
         return torch.from_numpy(image)
 
     @staticmethod
+    @once_differentiable  # type: ignore[misc]
     def backward(ctx: Any, grad_image: Tensor) -> tuple[Tensor | None, ...]:
         """Gradients for means2d, conics, opacities and values (None for the rest)."""
         means2d, conics, opacities, values, offsets, ids, t_final, n_contrib = ctx.saved_tensors

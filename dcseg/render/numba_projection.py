@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from dcseg.render.projection import ALPHA_MIN, EPS2D, MAX_EXTEND, NEAR_PLANE, TILE_SIZE
+from dcseg.render.projection import ALPHA_MIN, EPS2D, MAX_EXTEND, TILE_SIZE
 
 CHUNK = 1024
 """Gaussians per parallel work item (each item allocates its scratch rows once)."""
@@ -133,9 +133,16 @@ def _covariance(work: Array) -> tuple[float, float, float]:
 
 @_jit(parallel=True)
 def project_all(
-    means: Array, quats: Array, log_scales: Array, logits: Array, view: Array, intr: Array
+    means: Array,
+    quats: Array,
+    log_scales: Array,
+    logits: Array,
+    view: Array,
+    intr: Array,
+    near: float,
 ) -> tuple[Array, Array, Array, Array, Array, Array]:
-    """Project every Gaussian.
+    """Project every Gaussian; ``near`` is :data:`NEAR_PLANE` rounded to the input precision
+    (so that float32 inputs are culled exactly as the PyTorch projection culls them).
 
     Returns:
         ``depths [N]``, ``means2d [N, 2]``, ``conics [N, 3]``, ``opacities [N]``, ``radii [N, 2]``
@@ -151,7 +158,7 @@ def project_all(
         for i in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
             z = _camera_point(means, i, view, work)
             depths[i] = z
-            if not z >= NEAR_PLANE:  # culled (also NaN): skip the covariance
+            if not z >= near:  # culled (also NaN): skip the covariance
                 continue
             _splat_matrices(quats, log_scales, i, view, intr, work)
             means2d[i, 0] = intr[0] * work[P, 0] / z + intr[2]
@@ -160,7 +167,7 @@ def project_all(
             det = sxx * syy - sxy * sxy
             conics[i, 0], conics[i, 1], conics[i, 2] = syy / det, -sxy / det, sxx / det
             opac[i] = 1.0 / (1.0 + math.exp(-logits[i]))
-            visible[i] = _visible(opac[i], sxx, syy, det, z, means2d, i, intr, radii)
+            visible[i] = _visible(opac[i], sxx, syy, det, means2d, i, intr, radii)
     return depths, means2d, conics, opac, radii, visible
 
 
@@ -170,25 +177,25 @@ def _visible(
     sxx: float,
     syy: float,
     det: float,
-    z: float,
     means2d: Array,
     i: int,
     intr: Array,
     radii: Array,
 ) -> bool:
-    """Write gsplat's opacity-aware radii of splat ``i``; return whether it is visible."""
+    """Write gsplat's opacity-aware radii of splat ``i`` (in front of the near plane); return
+    whether it is visible."""
     if o < ALPHA_MIN:
         return False
     extend = min(math.sqrt(2.0 * math.log(o / ALPHA_MIN)), MAX_EXTEND)
-    rx = math.ceil(extend * math.sqrt(max(sxx, 0.0)))
-    ry = math.ceil(extend * math.sqrt(max(syy, 0.0)))
+    rx = np.ceil(extend * math.sqrt(max(sxx, 0.0)))  # float: math.ceil is int64 in numba
+    ry = np.ceil(extend * math.sqrt(max(syy, 0.0)))
     radii[i, 0], radii[i, 1] = rx, ry
     u, v = means2d[i, 0], means2d[i, 1]
     finite = math.isfinite(u) and math.isfinite(v) and math.isfinite(rx) and math.isfinite(ry)
     u, v = u + 0.5, v + 0.5  # gsplat pixel coordinates
     on_screen = u + rx > 0 and v + ry > 0 and u - rx < intr[4] and v - ry < intr[5]
     nonzero = rx > 0 or ry > 0
-    return bool(z >= NEAR_PLANE and finite and det > 0.0 and on_screen and nonzero)
+    return bool(finite and det > 0.0 and on_screen and nonzero)
 
 
 @_jit(parallel=False)

@@ -94,3 +94,15 @@ def test_dominant_group_ties_and_none(method: str) -> None:
     dominant = getattr(blend, method)
     assert dominant(torch.tensor([1, 0, -1]), 0.1).tolist() == [[0, -1, -1]]
     assert dominant(torch.tensor([-1, -1, -1]), 0.1).tolist() == [[-1, -1, -1]]
+
+
+@pytest.mark.parametrize("method", DOMINANT)
+def test_dominant_group_sums_and_floor_in_float32(method: str) -> None:
+    """float32 sums: 0.1 + 0.2 == 0.3 ties (lower group wins); a floor equal to a weight claims."""
+    offsets = torch.tensor([0, 3, 4])
+    ids = torch.tensor([0, 1, 2, 3], dtype=torch.int32)
+    weights = torch.tensor([0.1, 0.2, 0.3, 0.7], dtype=torch.float32)
+    blend = BlendWeights(1, 2, offsets, ids, weights)
+    group = torch.tensor([0, 0, 1, 2])
+    assert getattr(blend, method)(group, 0.7).tolist() == [[-1, 2]]
+    assert getattr(blend, method)(group, 0.3).tolist() == [[0, 2]]

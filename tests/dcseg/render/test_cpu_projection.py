@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 from torch import Tensor
 
@@ -99,3 +100,21 @@ def test_behind_camera_and_transparent_are_culled() -> None:
     splats = project_cpu(g, scenes.camera())
     assert splats.index.tolist() == [0]
     assert bool(torch.isfinite(splats.conics).all())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_boundary_cases_match_torch_projection(dtype: torch.dtype) -> None:
+    """A centre exactly on the (rounded) near plane and a ~1e8 px radius: same decisions."""
+    means = torch.tensor([[0.0, 0.0, 0.01], [0.0, 0.0, 1.0], [0.2, 0.1, 2.0]], dtype=dtype)
+    log_scales = torch.tensor(
+        [[math.log(1e-3)] * 3, [15.0, -3.0, -3.0], [math.log(0.05)] * 3], dtype=dtype
+    )
+    g = Gaussians(
+        means,
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 3, dtype=dtype),
+        log_scales,
+        torch.zeros(3, dtype=dtype),
+        torch.zeros(3, 1, 3, dtype=dtype),
+    )
+    cam = scenes.camera(dtype=dtype)
+    assert project_cpu(g, cam).index.tolist() == project(g, cam).index.tolist()

@@ -34,6 +34,12 @@ def register(subparsers: Any) -> None:
         "--noise", choices=NOISE_CHOICES, default="default", help="mask/depth noise level"
     )
     parser.add_argument(
+        "--supersample",
+        type=int,
+        default=2,
+        help="render colour at this factor and area-average it (anti-aliasing; 1 = off; default 2)",
+    )
+    parser.add_argument(
         "--overwrite",
         action="store_true",
         help="replace OUT if it holds an earlier synth output",
@@ -58,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
     from dcseg.synth import SynthConfig, generate_scene, write_scene
 
     try:
-        cfg = SynthConfig(args.seed, args.frames, args.size[0], args.size[1], args.noise)
+        cfg = SynthConfig(
+            args.seed, args.frames, args.size[0], args.size[1], args.noise, args.supersample
+        )
     except ValueError as exc:
         sys.stderr.write(f"dcseg synth: {exc}\n")
         return 2

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -39,9 +41,34 @@ class RenderedView:
 
 
 def render_view(
-    client: int, camera: CameraModel, c2w: NDArray[np.float64], light: Lighting
+    client: int,
+    camera: CameraModel,
+    c2w: NDArray[np.float64],
+    light: Lighting,
+    supersample: int = 1,
 ) -> RenderedView:
-    """Render RGB, metric depth and body ids of one camera-to-world pose (OpenCV axes)."""
+    """Render RGB, metric depth and body ids of one camera-to-world pose (OpenCV axes).
+
+    With ``supersample = s > 1`` the colour is rendered at ``s`` x the resolution and
+    area-averaged (anti-aliased, like a real sensor integrating over each pixel), while depth and
+    body ids stay point samples at the pixel centres of ``camera``.
+    """
+    rgb, buffer, seg = _camera_image(client, camera, c2w, light)
+    if supersample > 1:
+        fine = _camera_image(client, camera.supersampled(supersample), c2w, light)[0]
+        size = (camera.width, camera.height)
+        rgb = np.asarray(cv2.resize(fine, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    raw = np.asarray(seg, dtype=np.int64).reshape(camera.height, camera.width)
+    body = np.where(raw >= 0, raw & ((1 << 24) - 1), -1).astype(np.int32)
+    depth = camera.linear_depth(np.asarray(buffer, dtype=np.float64))
+    depth[body < 0] = 0.0
+    return RenderedView(rgb=rgb, depth=depth, body=body)
+
+
+def _camera_image(
+    client: int, camera: CameraModel, c2w: NDArray[np.float64], light: Lighting
+) -> tuple[NDArray[np.uint8], NDArray[np.float64], Any]:
+    """pybullet's TinyRenderer output: ``[H, W, 3]`` RGB, ``[H, W]`` window depth, segmentation."""
     import pybullet as p
 
     w, h = camera.width, camera.height
@@ -59,11 +86,7 @@ def render_view(
         physicsClientId=client,
     )
     rgb = np.ascontiguousarray(np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[..., :3])
-    raw = np.asarray(seg, dtype=np.int64).reshape(h, w)
-    body = np.where(raw >= 0, raw & ((1 << 24) - 1), -1).astype(np.int32)
-    depth = camera.linear_depth(np.asarray(buffer, dtype=np.float64).reshape(h, w))
-    depth[body < 0] = 0.0
-    return RenderedView(rgb=rgb, depth=depth, body=body)
+    return rgb, np.asarray(buffer, dtype=np.float64).reshape(h, w), seg
 
 
 def instance_lookup(instances: Sequence[SceneInstance]) -> tuple[NDArray[np.int32], ...]:

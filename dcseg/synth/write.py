@@ -80,6 +80,7 @@ def scene_summary(scene: SynthScene, timings: dict[str, float]) -> dict[str, Any
         "seed": cfg.seed,
         "noise": cfg.noise,
         "size": [cfg.width, cfg.height],
+        "supersample": cfg.supersample,
         "frames": len(scene.capture),
         "vocabulary": list(scene.vocabulary.names),
         "rare_classes": list(RARE_CLASSES),

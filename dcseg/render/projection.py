@@ -1,4 +1,6 @@
-"""EWA projection of 3D Gaussians to image-space splats, shared by the reference and CPU backends.
+"""EWA projection of 3D Gaussians to image-space splats: the reference backend's, and the oracle
+of the ``cpu`` backend's numba port (:mod:`dcseg.render.cpu_projection`), which shares its
+constants and :class:`Splats`.
 
 Follows gsplat 1.5.3 (``fully_fused_projection`` + ``isect_tiles``, pinhole, classic mode) so
 that all backends agree: covariance ``R S S^T R^T``, Jacobian of the perspective projection with

@@ -11,6 +11,11 @@ exact: there the alpha test would reject the splat anyway.
 Backward gradients are written per (tile, splat) intersection, never shared between tiles, so
 the parallel loop has no races and the result is deterministic; the caller sums them per splat.
 
+Arithmetic runs in the values' dtype: pixel coordinates and constants are converted once
+(:func:`_typed`), so float32 inputs use float32 ``exp`` instead of being promoted to float64 by
+the int64 pixel indices. Pixels farther from a splat's centre than its alpha >= 1/255 ellipse
+(plus a margin far above rounding) skip the ``exp``: the alpha test would reject them anyway.
+
 Private module; arrays are float32 or float64 (one compiled specialisation each).
 """
 
@@ -127,6 +132,24 @@ def _tile_box(tile: int, tiles_x: int, width: int, height: int, box: Array) -> N
     box[3] = min(box[2] + TILE_SIZE, height) - 1
 
 
+@_jit(parallel=False)
+def _typed(values: Array, size: int) -> tuple[Array, Array]:
+    """Pixel coordinates ``0..size-1`` and the constants (1/2, 1, ALPHA_MAX, ALPHA_MIN, T_MIN)
+    in the dtype of ``values``."""
+    coords = np.empty(size, dtype=values.dtype)
+    for i in range(size):
+        coords[i] = i
+    consts = np.empty(5, dtype=values.dtype)
+    consts[0], consts[1], consts[2], consts[3], consts[4] = 0.5, 1.0, ALPHA_MAX, ALPHA_MIN, T_MIN
+    return coords, consts
+
+
+@_jit(parallel=False)
+def _sigma_cut(opacity: float) -> float:
+    """A Mahalanobis half-distance beyond which ``opacity * exp(-sigma) < ALPHA_MIN`` for sure."""
+    return math.log(opacity / ALPHA_MIN) + 1e-3
+
+
 @_jit(parallel=True)
 def forward(
     means2d: Array,
@@ -150,11 +173,12 @@ def forward(
     out = np.zeros((height, width, values.shape[1]), dtype=values.dtype)
     t_final = np.ones((height, width), dtype=values.dtype)
     n_contrib = np.zeros((height, width), dtype=np.int32)
+    coords, consts = _typed(values, max(width, height))
     for worker in prange(starts.shape[0] - 1):
         for tile in order[starts[worker] : starts[worker + 1]]:
             _forward_tile(
                 tile, means2d, conics, opacities, values, offsets, ids, tiles_x, out, t_final,
-                n_contrib,
+                n_contrib, coords, consts,
             )  # fmt: skip
     return out, t_final, n_contrib
 
@@ -172,6 +196,8 @@ def _forward_tile(
     out: Array,
     t_final: Array,
     n_contrib: Array,
+    coords: Array,
+    consts: Array,
 ) -> None:
     height, width = out.shape[0], out.shape[1]
     tbox = np.empty(4, dtype=np.int64)
@@ -193,7 +219,7 @@ def _forward_tile(
         ):  # fmt: skip
             n_done += _forward_splat(
                 k - start, g, box, x0, y0, means2d, conics, opacities, values, out,
-                trans, done, last,
+                trans, done, last, coords, consts,
             )  # fmt: skip
             if n_done == n_pix:
                 break
@@ -218,26 +244,32 @@ def _forward_splat(
     trans: Array,
     done: Array,
     last: Array,
+    coords: Array,
+    consts: Array,
 ) -> int:
     """Composite one splat over the pixels of ``box``; returns how many pixels it finished."""
     channels = values.shape[1]
+    half, one, alpha_max, alpha_min, t_min = consts[0], consts[1], consts[2], consts[3], consts[4]
     mx, my = means2d[g, 0], means2d[g, 1]
     a, b, c = conics[g, 0], conics[g, 1], conics[g, 2]
     opacity = opacities[g]
+    cut = _sigma_cut(opacity)
     finished = 0
     for py in range(box[2], box[3] + 1):
-        dy = my - py
+        dy = my - coords[py]
         for px in range(box[0], box[1] + 1):
             i, j = py - y0, px - x0
             if done[i, j]:
                 continue
-            dx = mx - px
-            sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
-            alpha = min(ALPHA_MAX, opacity * math.exp(-sigma))
-            if sigma < 0.0 or alpha < ALPHA_MIN:
+            dx = mx - coords[px]
+            sigma = half * (a * dx * dx + c * dy * dy) + b * dx * dy
+            if sigma > cut or sigma < 0.0:
                 continue
-            next_t = trans[i, j] * (1.0 - alpha)
-            if next_t <= T_MIN:
+            alpha = min(alpha_max, opacity * math.exp(-sigma))
+            if alpha < alpha_min:
+                continue
+            next_t = trans[i, j] * (one - alpha)
+            if next_t <= t_min:
                 done[i, j] = True
                 finished += 1
                 continue
@@ -271,11 +303,12 @@ def backward(
         (tile, splat) entry of ``ids``; the caller sums rows by splat id.
     """
     grads = np.zeros((ids.shape[0], 6 + values.shape[1]), dtype=values.dtype)
+    coords, consts = _typed(values, max(grad_out.shape[0], grad_out.shape[1]))
     for worker in prange(starts.shape[0] - 1):
         for tile in order[starts[worker] : starts[worker + 1]]:
             _backward_tile(
                 tile, means2d, conics, opacities, values, offsets, ids, t_final, n_contrib,
-                grad_out, tiles_x, grads,
+                grad_out, tiles_x, grads, coords, consts,
             )  # fmt: skip
     return grads
 
@@ -294,6 +327,8 @@ def _backward_tile(
     grad_out: Array,
     tiles_x: int,
     grads: Array,
+    coords: Array,
+    consts: Array,
 ) -> None:
     height, width = grad_out.shape[0], grad_out.shape[1]
     tbox = np.empty(4, dtype=np.int64)
@@ -318,7 +353,7 @@ def _backward_tile(
         ):  # fmt: skip
             _backward_splat(
                 k - start, g, box, x0, y0, means2d, conics, opacities, values, grad_out,
-                trans, later, last, grads, k,
+                trans, later, last, grads, k, coords, consts,
             )  # fmt: skip
 
 
@@ -359,27 +394,33 @@ def _backward_splat(
     last: Array,
     grads: Array,
     row: int,
+    coords: Array,
+    consts: Array,
 ) -> None:
     """Accumulate one splat's gradients over the pixels of ``box`` into ``grads[row]``."""
     channels = values.shape[1]
+    half, one, alpha_max, alpha_min = consts[0], consts[1], consts[2], consts[3]
     mx, my = means2d[g, 0], means2d[g, 1]
     a, b, c = conics[g, 0], conics[g, 1], conics[g, 2]
     opacity = opacities[g]
+    cut = _sigma_cut(opacity)
     g_mx = g_my = g_a = g_b = g_c = g_o = 0.0  # local sums: no store per pixel
     for py in range(box[2], box[3] + 1):
-        dy = my - py
+        dy = my - coords[py]
         for px in range(box[0], box[1] + 1):
             i, j = py - y0, px - x0
             if local >= last[i, j]:
                 continue
-            dx = mx - px
-            sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+            dx = mx - coords[px]
+            sigma = half * (a * dx * dx + c * dy * dy) + b * dx * dy
+            if sigma > cut or sigma < 0.0:
+                continue
             gauss = math.exp(-sigma)
             raw = opacity * gauss
-            alpha = min(ALPHA_MAX, raw)
-            if sigma < 0.0 or alpha < ALPHA_MIN:
+            alpha = min(alpha_max, raw)
+            if alpha < alpha_min:
                 continue
-            inv = 1.0 / (1.0 - alpha)
+            inv = one / (one - alpha)
             t_before = trans[i, j] * inv
             trans[i, j] = t_before
             weight = alpha * t_before
@@ -388,14 +429,14 @@ def _backward_splat(
                 grads[row, 6 + ch] += weight * grad_out[py, px, ch]
             d_alpha = t_before * v_dot_g - later[i, j] * inv
             later[i, j] += weight * v_dot_g
-            if raw > ALPHA_MAX:
+            if raw > alpha_max:
                 continue  # clamped: alpha does not depend on the splat here
             d_sigma = -raw * d_alpha
             g_mx += (a * dx + b * dy) * d_sigma
             g_my += (b * dx + c * dy) * d_sigma
-            g_a += 0.5 * dx * dx * d_sigma
+            g_a += half * dx * dx * d_sigma
             g_b += dx * dy * d_sigma
-            g_c += 0.5 * dy * dy * d_sigma
+            g_c += half * dy * dy * d_sigma
             g_o += gauss * d_alpha
     grads[row, 0], grads[row, 1], grads[row, 2] = g_mx, g_my, g_a
     grads[row, 3], grads[row, 4], grads[row, 5] = g_b, g_c, g_o

@@ -8,11 +8,14 @@ features use all K slots and are not renormalised.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 import torch.nn.functional as F
 from scipy.spatial import cKDTree
 from torch import Tensor
+from torch.autograd.function import once_differentiable
 
 EPS = 1e-12
 """Norm floor of the L2 normalisations (``torch.nn.functional.normalize``'s default)."""
@@ -73,10 +76,47 @@ def smooth_features(
 def _smooth(features: Tensor, neighbours: Tensor, slots: Tensor | None, renorm: bool) -> Tensor:
     if slots is not None:
         neighbours = neighbours[:, slots.to(neighbours.device)]
+    if features.device.type == "cpu":
+        mean = NeighbourMean.apply(features, neighbours)  # type: ignore[no-untyped-call]
+    else:
+        mean = neighbour_mean_torch(features, neighbours)
+    return F.normalize(mean, dim=-1, eps=EPS) if renorm else mean
+
+
+def neighbour_mean_torch(features: Tensor, neighbours: Tensor) -> Tensor:
+    """``[R, D]`` mean over each row of ``neighbours [R, k]`` of the L2-normalised features."""
     rows, k = neighbours.shape
-    # index_select (backward: index_add) is much faster on CPU than advanced indexing
+    # index_select (backward: index_add) is much faster than advanced indexing
     gathered = features.index_select(0, neighbours.reshape(-1)).view(rows, k, -1)
     # x / max(|x|, eps) as a product with the inverse norm (cheaper forward and backward)
     inverse = gathered.square().sum(-1, keepdim=True).clamp(min=EPS * EPS).rsqrt()
-    mean = (gathered * inverse).mean(dim=1)
-    return F.normalize(mean, dim=-1, eps=EPS) if renorm else mean
+    return (gathered * inverse).mean(dim=1)
+
+
+class NeighbourMean(torch.autograd.Function):
+    """:func:`neighbour_mean_torch` with numba kernels (CPU tensors): ~5x faster, no gather."""
+
+    @staticmethod
+    def forward(ctx: Any, features: Tensor, neighbours: Tensor) -> Tensor:
+        """``[R, D]`` mean of the normalised features of each row's neighbours."""
+        from dcseg.affinity import kernels
+
+        x, nbr = _numpy(features), _numpy(neighbours)
+        ctx.save_for_backward(features, neighbours)
+        return torch.from_numpy(kernels.neighbour_mean(x, nbr, EPS))
+
+    @staticmethod
+    @once_differentiable  # type: ignore[misc]
+    def backward(ctx: Any, grad_out: Tensor) -> tuple[Tensor, None]:
+        """Gradient for the features (the neighbour indices have none)."""
+        from dcseg.affinity import kernels
+
+        features, neighbours = ctx.saved_tensors
+        grad = _numpy(grad_out.to(features.dtype))
+        return torch.from_numpy(
+            kernels.neighbour_mean_backward(_numpy(features), _numpy(neighbours), grad, EPS)
+        ), None
+
+
+def _numpy(t: Tensor) -> np.ndarray[Any, Any]:
+    return np.ascontiguousarray(t.detach().numpy())

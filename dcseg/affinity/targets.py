@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from dcseg.affinity import kernels
 from dcseg.affinity.scales import camera_points, decoded_masks, scale_of_mask
 from dcseg.types import AgnosticMasks
 
@@ -177,19 +178,13 @@ def pair_affinity(member: NDArray[np.bool_], cut: NDArray[np.int64]) -> NDArray[
     (upper bound) this reduces to "p and q share any original mask".
     """
     s, m = member.shape
-    words = _pack_words(member)  # [S, W]
-    shared = [np.bitwise_and.outer(words[:, w], words[:, w]) for w in range(words.shape[1])]
+    if m == 0:
+        return np.zeros((cut.shape[0], s, s), dtype=bool)
     index = np.where(member, np.arange(m), -1)
-    owner_upto = np.maximum.accumulate(index, axis=1) if m else index  # [S, M]
-    out = np.zeros((cut.shape[0], s, s), dtype=bool)
-    for t, j in enumerate(cut):
-        smaller = _pack_words(np.arange(m)[None, :] > j)[0]  # [W] masks k > j
-        for w, pairs in enumerate(shared):
-            if smaller[w]:
-                out[t] |= (pairs & smaller[w]) != 0
-        if j >= 0:
-            owner = owner_upto[:, j]
-            out[t] |= (owner[:, None] == owner[None, :]) & (owner >= 0)[:, None]
+    owner_upto = np.maximum.accumulate(index, axis=1)  # [S, M] smallest mask among 0..j
+    owner = np.ascontiguousarray(owner_upto[:, np.clip(cut, 0, m - 1)].T)  # [T, S]
+    smaller = _pack_words(np.arange(m)[None, :] > cut[:, None])  # [T, W] masks k > cut_t
+    out: NDArray[np.bool_] = kernels.pair_affinity(_pack_words(member), owner, smaller, cut)
     return out
 
 

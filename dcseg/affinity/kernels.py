@@ -111,15 +111,55 @@ def pair_affinity(words: Array, owner: Array, smaller: Array, cut: Array) -> Arr
         cut: ``[T]`` the samples' cuts (owners count only where ``cut[t] >= 0``).
     """
     n_t, s = owner.shape
-    out = np.zeros((n_t, s, s), dtype=np.bool_)
+    n_words = words.shape[1]
+    out = np.empty((n_t, s, s), dtype=np.bool_)
     for p in prange(s):
+        mine = np.empty(n_words, dtype=np.uint64)
         for t in range(n_t):
-            o = owner[t, p] if cut[t] >= 0 else -1
-            for q in range(s):
-                shared = False
-                for w in range(words.shape[1]):
-                    if words[p, w] & words[q, w] & smaller[t, w]:
-                        shared = True
-                        break
-                out[t, p, q] = shared or (o >= 0 and owner[t, q] == o)
+            for w in range(n_words):
+                mine[w] = words[p, w] & smaller[t, w]
+            o = owner[t, p] if cut[t] >= 0 and owner[t, p] >= 0 else -2  # -2 matches nobody
+            for q in range(s):  # branch-free body
+                shared = np.uint64(0)
+                for w in range(n_words):
+                    shared |= mine[w] & words[q, w]
+                out[t, p, q] = (shared != 0) | (owner[t, q] == o)
+    return out
+
+
+@_jit(parallel=True)
+def pair_extremes(cos: Array, affinity: Array, low: Array, high: Array) -> None:
+    """Per pair, min and max over scales of ``cos - 4 G`` (positives shifted below -2).
+
+    Args:
+        cos: ``[T, B, C]`` cosines of a block of rows.
+        affinity: ``[T, B, C]`` bool ground truth of the same pairs.
+        low, high: ``[B, C]`` outputs, written in place.
+    """
+    n_t, rows, cols = cos.shape
+    for i in prange(rows):
+        for c in range(cols):
+            low[i, c] = np.inf
+            high[i, c] = -np.inf
+        for t in range(n_t):
+            for c in range(cols):
+                v = cos[t, i, c] - 4.0 * affinity[t, i, c]
+                low[i, c] = min(low[i, c], v)
+                high[i, c] = max(high[i, c], v)
+
+
+@_jit(parallel=True)
+def pair_coefficients(cos: Array, affinity: Array, a: Array, b: Array) -> Array:
+    """``[T, B, C]``: ``-a`` on positive pairs, ``b`` on negative pairs with cosine > 0, else 0."""
+    n_t, rows, cols = cos.shape
+    out = np.empty(cos.shape, dtype=cos.dtype)
+    for i in prange(rows):
+        for t in range(n_t):
+            for c in range(cols):
+                if affinity[t, i, c]:
+                    out[t, i, c] = -a[i, c]
+                elif cos[t, i, c] > 0.0:
+                    out[t, i, c] = b[i, c]
+                else:
+                    out[t, i, c] = 0.0
     return out

@@ -8,6 +8,8 @@ Speed: the ``[T, S, S]`` work is memory-bound, so it runs over blocks of rows (c
 ``[T, B, S - r0]`` slabs, columns of the upper triangle only), and the loss is written as
 ``sum_t sum_pq k_t(p, q) C_t(p, q)`` with coefficients ``k`` fixed under ``no_grad`` (pair sets,
 ``G``, the ``max(C, 0)`` switch), so no differentiable ``[T, S, S]`` cosine tensor is kept.
+On the CPU the elementwise passes over each slab (min/max over scales, coefficients) are fused
+numba kernels (:mod:`dcseg.affinity.kernels`); other devices use the PyTorch expressions.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+
+from dcseg.affinity import kernels
 
 _SHIFT = 4.0
 _SPLIT = -2.0
@@ -60,14 +64,14 @@ def contrastive_loss(
     phi = F.normalize(features[None, :, :] * gates[:, None, :], dim=-1)  # [T, S, D]
     blocks = _row_blocks(phi.shape[1], block_rows)
     with torch.no_grad():
-        shifted = [_shifted_block(phi, affinity, r0, r1) for r0, r1 in blocks]
-        low, high = _extremes(shifted, blocks, phi.shape[1], phi.dtype)
+        cos = [phi[:, r0:r1] @ phi[:, r0:].transpose(1, 2) for r0, r1 in blocks]
+        low, high = _extremes(cos, affinity, blocks, phi.shape[1])
         pos, neg = _select(low, high, affinity, draw, pos_threshold, neg_threshold)
         a, b = _pair_scales(weights.to(phi.dtype), pos, neg, phi.shape[0])
     pairs = phi.new_zeros(())
-    for (r0, r1), u in zip(blocks, shifted, strict=True):
-        with torch.no_grad():  # u < -2 <=> G = 1; u > 0 <=> G = 0 and C > 0
-            coef = torch.where(u < _SPLIT, -a[r0:r1, r0:], u.gt_(0.0).mul_(b[r0:r1, r0:]))
+    for (r0, r1), c in zip(blocks, cos, strict=True):
+        with torch.no_grad():
+            coef = _coefficients(c, affinity[:, r0:r1, r0:], a[r0:r1, r0:], b[r0:r1, r0:])
         pairs = pairs + (phi[:, r0:r1] * (coef @ phi[:, r0:])).sum()
     norm = features.norm(dim=-1).mean() if features.shape[0] else features.new_zeros(())
     return pairs + norm_weight * (1.0 - norm) ** 2
@@ -103,22 +107,40 @@ def _row_blocks(s: int, rows: int) -> list[tuple[int, int]]:
     return [(r0, min(r0 + rows, s)) for r0 in range(0, s, max(rows, 1))]
 
 
-def _shifted_block(phi: Tensor, affinity: Tensor, r0: int, r1: int) -> Tensor:
-    """``[T, r1 - r0, S - r0]`` cosines of rows ``r0:r1`` vs columns ``r0:``, positives - 4."""
-    cos = phi[:, r0:r1] @ phi[:, r0:].transpose(1, 2)
-    return cos.add_(affinity[:, r0:r1, r0:], alpha=-_SHIFT)
-
-
 def _extremes(
-    shifted: list[Tensor], blocks: list[tuple[int, int]], s: int, dtype: torch.dtype
+    cos: list[Tensor], affinity: Tensor, blocks: list[tuple[int, int]], s: int
 ) -> tuple[Tensor, Tensor]:
-    """``[S, S]`` min and max over scales of the shifted cosines (upper-triangle columns)."""
-    device = shifted[0].device if shifted else None
+    """``[S, S]`` min and max over scales of ``cos - 4 G`` (upper-triangle columns; 0 below)."""
+    device, dtype = (cos[0].device, cos[0].dtype) if cos else (None, torch.float32)
     low = torch.zeros(s, s, dtype=dtype, device=device)
     high = torch.zeros(s, s, dtype=dtype, device=device)
-    for (r0, r1), u in zip(blocks, shifted, strict=True):
-        low[r0:r1, r0:], high[r0:r1, r0:] = u.amin(0), u.amax(0)  # faster than aminmax
+    for (r0, r1), c in zip(blocks, cos, strict=True):
+        g, lo, hi = affinity[:, r0:r1, r0:], low[r0:r1, r0:], high[r0:r1, r0:]
+        if c.device.type == "cpu":  # one fused pass instead of three
+            kernels.pair_extremes(c.numpy(), g.numpy(), lo.numpy(), hi.numpy())
+        else:
+            extremes_torch(c, g, lo, hi)
     return low, high
+
+
+def extremes_torch(cos: Tensor, affinity: Tensor, low: Tensor, high: Tensor) -> None:
+    """:func:`dcseg.affinity.kernels.pair_extremes` in PyTorch (for devices other than CPU)."""
+    u = cos.add(affinity, alpha=-_SHIFT)
+    low[...], high[...] = u.amin(0), u.amax(0)  # faster than aminmax
+
+
+def _coefficients(cos: Tensor, affinity: Tensor, a: Tensor, b: Tensor) -> Tensor:
+    """``k_t(p, q)``: ``-a`` where ``G = 1``, ``b`` where ``G = 0`` and ``C > 0``, else 0."""
+    if cos.device.type == "cpu":
+        return torch.from_numpy(
+            kernels.pair_coefficients(cos.numpy(), affinity.numpy(), a.numpy(), b.numpy())
+        )
+    return coefficients_torch(cos, affinity, a, b)
+
+
+def coefficients_torch(cos: Tensor, affinity: Tensor, a: Tensor, b: Tensor) -> Tensor:
+    """:func:`dcseg.affinity.kernels.pair_coefficients` in PyTorch (devices other than CPU)."""
+    return torch.where(affinity, -a, (cos > 0) * b)
 
 
 def _select(

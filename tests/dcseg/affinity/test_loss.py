@@ -129,3 +129,25 @@ def test_mine_pairs_matches_reference():
             mine_pairs(cos, affinity, draw), _reference_mining(cos, affinity, draw), strict=True
         ):
             assert torch.equal(got, want)
+
+
+def test_cpu_kernels_match_the_torch_expressions():
+    from dcseg.affinity import kernels
+    from dcseg.affinity.loss import coefficients_torch, extremes_torch
+
+    g = torch.Generator().manual_seed(4)
+    for dtype in (torch.float32, torch.float64):
+        cos = torch.rand(3, 7, 9, generator=g, dtype=dtype) * 2 - 1
+        cos[0, 0, 0] = 0.0  # on the C > 0 switch
+        affinity = torch.rand(3, 7, 9, generator=g) < 0.4
+        a, b = (
+            torch.rand(7, 9, generator=g, dtype=dtype),
+            torch.rand(7, 9, generator=g, dtype=dtype),
+        )
+        low, high = torch.empty(7, 9, dtype=dtype), torch.empty(7, 9, dtype=dtype)
+        kernels.pair_extremes(cos.numpy(), affinity.numpy(), low.numpy(), high.numpy())
+        want_low, want_high = torch.empty_like(low), torch.empty_like(high)
+        extremes_torch(cos, affinity, want_low, want_high)
+        assert torch.equal(low, want_low) and torch.equal(high, want_high)
+        coef = kernels.pair_coefficients(cos.numpy(), affinity.numpy(), a.numpy(), b.numpy())
+        assert torch.equal(torch.from_numpy(coef), coefficients_torch(cos, affinity, a, b))

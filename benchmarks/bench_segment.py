@@ -6,6 +6,7 @@ saved state again with the other matcher (no retraining) and evaluate both, next
 
     python benchmarks/bench_segment.py --out benchmarks/results/segment.json
     python benchmarks/bench_segment.py --frames 24 --size 160x120   # a quicker variant
+    python benchmarks/bench_segment.py --work /tmp/bench   # keep scenes and runs for inspection
 """
 
 from __future__ import annotations
@@ -111,11 +112,15 @@ def main() -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--noise", nargs="+", default=["clean", "default", "heavy"])
+    parser.add_argument(
+        "--work", type=Path, default=None, help="keep scenes and runs here (default: a temp dir)"
+    )
     args = parser.parse_args()
     results = []
     with tempfile.TemporaryDirectory() as tmp:
+        work = args.work if args.work is not None else Path(tmp)
         for noise in args.noise:
-            result = bench_noise(noise, args, Path(tmp))
+            result = bench_noise(noise, args, work)
             result["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
             results.append(result)
             print(json.dumps(result["miou_macc"]), flush=True)

@@ -7,6 +7,12 @@ saved state again with the other matcher (no retraining) and evaluate both, next
     python benchmarks/bench_segment.py --out benchmarks/results/segment.json
     python benchmarks/bench_segment.py --frames 24 --size 160x120   # a quicker variant
     python benchmarks/bench_segment.py --work /tmp/bench   # keep scenes and runs for inspection
+    python benchmarks/bench_segment.py --work /tmp/bench --rescore   # re-segment the kept runs
+
+``--rescore`` re-segments and re-evaluates the runs kept by an earlier ``--work`` run with the
+current code and the current defaults of the segmentation stages (clustering, cluster masks,
+assignment; the trained state is reused, nothing is retrained) and updates the scores in
+``--out``; run, recluster and reclassify times stay as measured by that run.
 """
 
 from __future__ import annotations
@@ -55,9 +61,14 @@ def bench_noise(noise: str, args: argparse.Namespace, work: Path) -> dict[str, A
     }
 
 
-def matcher_table(run: Path, scene: Path) -> dict[str, Any]:
+def matcher_table(run: Path, scene: Path, current_defaults: bool = False) -> dict[str, Any]:
+    """Scores of both matchers on a saved run, with its own or the current segmentation config."""
     saved = load_run(run)
     cfg = PipelineConfig.from_dict(saved.record["config"])
+    if current_defaults:
+        now = preset("fast")
+        cfg = replace(cfg, cluster=replace(now.cluster, seed=cfg.cluster.seed), masks=now.masks)
+        cfg = replace(cfg, assign=now.assign, scale=now.scale)
     gt = read_ground_truth(scene / "gt" / "points.ply", len(saved.vocabulary))
     rows: dict[str, Any] = {}
     for mode in ("assignment", "matching"):
@@ -103,6 +114,21 @@ def markdown(results: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def rescore(args: argparse.Namespace) -> None:
+    """Update ``args.out`` with scores and re-segmentation times of the runs in ``args.work``."""
+    if args.work is None:
+        raise SystemExit("--rescore needs --work (the folder of an earlier --work run)")
+    data = json.loads(args.out.read_text())
+    for result in data["results"]:
+        noise = result["noise"]
+        run, scene = args.work / noise / "run", args.work / noise / "scene"
+        result.update(matcher_table(run, scene, current_defaults=True))
+        result["rescored"] = time.strftime("%Y-%m-%d %H:%M")
+        print(json.dumps(result["miou_macc"]), flush=True)
+    args.out.write_text(json.dumps(data, indent=1) + "\n")
+    print(markdown(data["results"]))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/segment.json"))
@@ -115,7 +141,13 @@ def main() -> None:
     parser.add_argument(
         "--work", type=Path, default=None, help="keep scenes and runs here (default: a temp dir)"
     )
+    parser.add_argument(
+        "--rescore", action="store_true", help="re-segment the runs kept in --work (no training)"
+    )
     args = parser.parse_args()
+    if args.rescore:
+        rescore(args)
+        return
     results = []
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work if args.work is not None else Path(tmp)

@@ -94,7 +94,11 @@ def neighbour_mean_torch(features: Tensor, neighbours: Tensor) -> Tensor:
 
 
 class NeighbourMean(torch.autograd.Function):
-    """:func:`neighbour_mean_torch` with numba kernels (CPU tensors): ~5x faster, no gather."""
+    """:func:`neighbour_mean_torch` with numba kernels (CPU tensors).
+
+    Reads each neighbour's feature once instead of building the ``[R, k, D]`` gather and its
+    elementwise passes: ~31 vs ~55 ms forward+backward per training step (R ~ 17k, k = 8).
+    """
 
     @staticmethod
     def forward(ctx: Any, features: Tensor, neighbours: Tensor) -> Tensor:

@@ -1,13 +1,14 @@
 """numba kernels of the affinity stage on the CPU: KNN smoothing (forward and analytic
-backward) and the ground-truth pair affinity.
+backward), the ground-truth pair affinity and the contrastive loss's fused per-pair passes.
 
 The PyTorch expression ``normalize(features)[neighbours].mean(1)`` gathers an ``[R, k, D]``
 tensor and runs half a dozen elementwise passes over it, forward and backward; per training
 step (R ~ 17k Gaussians, k = 8, D = 32) that was ~55 ms of a ~200 ms step. These kernels read
 each neighbour's feature once and never materialise the gather.
 
-Private module; :class:`NeighbourMean` in :mod:`dcseg.affinity.knn` and
-:func:`dcseg.affinity.targets.pair_affinity` are the public faces.
+Private module; :class:`NeighbourMean` in :mod:`dcseg.affinity.knn`,
+:func:`dcseg.affinity.targets.pair_affinity` and :func:`dcseg.affinity.loss.contrastive_loss`
+are the public faces.
 """
 
 from __future__ import annotations
@@ -29,12 +30,12 @@ def _jit(parallel: bool) -> Callable[[_F], _F]:
 
 
 @_jit(parallel=False)
-def _inverse_norm(features: Array, i: int, eps: float) -> float:
-    """``1 / max(|features[i]|, eps)``, the factor of ``torch.nn.functional.normalize``."""
+def _squared_norm(features: Array, i: int) -> float:
+    """``|features[i]|^2``."""
     s = 0.0
     for d in range(features.shape[1]):
         s += features[i, d] * features[i, d]
-    return 1.0 / max(math.sqrt(s), eps)
+    return s
 
 
 @_jit(parallel=True)
@@ -45,7 +46,7 @@ def neighbour_mean(features: Array, neighbours: Array, eps: float) -> Array:
     for r in prange(rows):
         for j in range(k):
             i = neighbours[r, j]
-            scale = _inverse_norm(features, i, eps) / k
+            scale = 1.0 / (max(math.sqrt(_squared_norm(features, i)), eps) * k)
             for d in range(features.shape[1]):
                 out[r, d] += features[i, d] * scale
     return out
@@ -84,9 +85,7 @@ def _normalize_backward(
     for i in prange(features.shape[0]):
         if not touched[i]:
             continue
-        s = 0.0
-        for d in range(dim):
-            s += features[i, d] * features[i, d]
+        s = _squared_norm(features, i)
         norm = math.sqrt(s)
         if norm <= eps:
             for d in range(dim):
@@ -128,12 +127,13 @@ def pair_affinity(words: Array, owner: Array, smaller: Array, cut: Array) -> Arr
 
 
 @_jit(parallel=True)
-def pair_extremes(cos: Array, affinity: Array, low: Array, high: Array) -> None:
-    """Per pair, min and max over scales of ``cos - 4 G`` (positives shifted below -2).
+def pair_extremes(cos: Array, affinity: Array, shift: float, low: Array, high: Array) -> None:
+    """Per pair, min and max over scales of ``cos - shift * G`` (positives moved below -1).
 
     Args:
         cos: ``[T, B, C]`` cosines of a block of rows.
         affinity: ``[T, B, C]`` bool ground truth of the same pairs.
+        shift: subtracted from the cosines of positive pairs (the loss's ``_SHIFT``).
         low, high: ``[B, C]`` outputs, written in place.
     """
     n_t, rows, cols = cos.shape
@@ -143,7 +143,7 @@ def pair_extremes(cos: Array, affinity: Array, low: Array, high: Array) -> None:
             high[i, c] = -np.inf
         for t in range(n_t):
             for c in range(cols):
-                v = cos[t, i, c] - 4.0 * affinity[t, i, c]
+                v = cos[t, i, c] - shift * affinity[t, i, c]
                 low[i, c] = min(low[i, c], v)
                 high[i, c] = max(high[i, c], v)
 

@@ -117,7 +117,7 @@ def _extremes(
     for (r0, r1), c in zip(blocks, cos, strict=True):
         g, lo, hi = affinity[:, r0:r1, r0:], low[r0:r1, r0:], high[r0:r1, r0:]
         if c.device.type == "cpu":  # one fused pass instead of three
-            kernels.pair_extremes(c.numpy(), g.numpy(), lo.numpy(), hi.numpy())
+            kernels.pair_extremes(c.numpy(), g.numpy(), _SHIFT, lo.numpy(), hi.numpy())
         else:
             extremes_torch(c, g, lo, hi)
     return low, high

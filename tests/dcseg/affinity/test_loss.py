@@ -145,7 +145,7 @@ def test_cpu_kernels_match_the_torch_expressions():
             torch.rand(7, 9, generator=g, dtype=dtype),
         )
         low, high = torch.empty(7, 9, dtype=dtype), torch.empty(7, 9, dtype=dtype)
-        kernels.pair_extremes(cos.numpy(), affinity.numpy(), low.numpy(), high.numpy())
+        kernels.pair_extremes(cos.numpy(), affinity.numpy(), 4.0, low.numpy(), high.numpy())
         want_low, want_high = torch.empty_like(low), torch.empty_like(high)
         extremes_torch(cos, affinity, want_low, want_high)
         assert torch.equal(low, want_low) and torch.equal(high, want_high)

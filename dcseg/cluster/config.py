@@ -43,7 +43,10 @@ class ClusterConfig:
     Attributes:
         clusterer: HDBSCAN backend: ``"hdbscan"`` (scikit-learn-contrib, the paper's) or
             ``"sklearn"`` (``sklearn.cluster.HDBSCAN``).
-        seed: seed of the random sample HDBSCAN is fitted on.
+        seed: seed of the random sample HDBSCAN is fitted on (the first of ``ensemble``).
+        ensemble: HDBSCAN is fitted on this many independent samples (seeds ``seed``,
+            ``seed + 1``, ...) and the partition agreeing most with the others is kept
+            (:mod:`dcseg.cluster.ensemble`); 1 = a single fit.
         sample_fraction: fraction of the Gaussians HDBSCAN is fitted on (paper: 0.02).
         min_sample_size: the sample has at least ``min(N, min_sample_size)`` Gaussians.
         max_sample_size: and at most this many (HDBSCAN on CPU grows super-linearly).
@@ -71,6 +74,7 @@ class ClusterConfig:
 
     clusterer: ClustererName = "hdbscan"
     seed: int = 0
+    ensemble: int = 1
     sample_fraction: float = 0.02
     min_sample_size: int = 10_000
     max_sample_size: int = 20_000
@@ -88,6 +92,8 @@ class ClusterConfig:
     def __post_init__(self) -> None:
         if self.clusterer not in ("hdbscan", "sklearn"):
             raise ValueError(f"clusterer must be 'hdbscan' or 'sklearn', got {self.clusterer!r}")
+        if self.ensemble < 1:
+            raise ValueError(f"ensemble must be >= 1, got {self.ensemble}")
         if not 0.0 < self.sample_fraction <= 1.0:
             raise ValueError(f"sample_fraction must be in (0, 1], got {self.sample_fraction}")
         if self.min_sample_size < 1 or self.max_sample_size < self.min_sample_size:

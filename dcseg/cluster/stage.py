@@ -7,15 +7,8 @@ from numpy.typing import NDArray
 
 from dcseg.cluster.backends import Clusterer
 from dcseg.cluster.config import ClusterConfig
-from dcseg.cluster.features import (
-    ArrayOrTensor,
-    Clustering,
-    as_numpy,
-    assign_to_centers,
-    fit_clusters,
-    l2_normalize,
-    refit_unassigned,
-)
+from dcseg.cluster.ensemble import consensus_partition
+from dcseg.cluster.features import ArrayOrTensor, Clustering, as_numpy, l2_normalize
 from dcseg.cluster.outliers import adaptive_radius, compact_labels, remove_outliers_3d
 
 
@@ -67,7 +60,9 @@ def cluster_features(
     Steps: L2-normalise; fit HDBSCAN on a seeded sample (:func:`fit_clusters`); assign every
     Gaussian to its most similar centre above ``cfg.min_similarity``
     (:func:`assign_to_centers`); fit again on the Gaussians left unassigned
-    (:func:`refit_unassigned`, when ``cfg.refit_unassigned``); drop small disconnected 3D
+    (:func:`refit_unassigned`, when ``cfg.refit_unassigned``) — ``cfg.ensemble`` times on
+    independent samples, keeping the most typical partition
+    (:func:`~dcseg.cluster.ensemble.consensus_partition`); drop small disconnected 3D
     fragments of each cluster (:func:`remove_outliers_3d`); remove emptied clusters and
     re-index ``0..K-1``.
     Deterministic for a given ``cfg.seed``.
@@ -94,12 +89,7 @@ def cluster_features(
     """
     x, pos, w = _checked_inputs(features, centers3d, weights)
     x = l2_normalize(x)
-    centers = fit_clusters(x, cfg, clusterer=clusterer)
-    labels, scores = assign_to_centers(x, centers, cfg.min_similarity)
-    if cfg.refit_unassigned:
-        labels, scores, centers = refit_unassigned(
-            x, labels, scores, centers, cfg, clusterer=clusterer
-        )
+    labels, scores, centers = consensus_partition(x, cfg, clusterer)
     if cfg.remove_outliers:
         labels = _drop_outliers(pos, labels, w, cfg)
     labels, centers = compact_labels(labels, centers)

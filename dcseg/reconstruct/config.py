@@ -34,6 +34,10 @@ class ReconstructConfig:
     full_res_from: int | None = None
     """From this step on, train on full-resolution views (coarse to fine); None = never."""
 
+    full_res_crop: float = 1.0
+    """Full-resolution steps train on a random window of this fraction of the width and height
+    (1 = whole views); the coarse steps always see whole (downscaled) views."""
+
     backend: str | None = None
     """Renderer backend (``"cpu"``, ``"reference"``, ...); None = the renderer's default."""
 
@@ -128,6 +132,8 @@ class ReconstructConfig:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.full_res_from is not None and self.full_res_from < 0:
             raise ValueError(f"full_res_from must be >= 0, got {self.full_res_from}")
+        if not 0.0 < self.full_res_crop <= 1.0:
+            raise ValueError(f"full_res_crop must be in (0, 1], got {self.full_res_crop}")
         if self.densify_every < 1:
             raise ValueError(f"densify_every must be >= 1, got {self.densify_every}")
         if self.voxel_size is not None and self.voxel_size <= 0:

@@ -21,7 +21,7 @@ from dcseg.reconstruct.densify import (
 )
 from dcseg.reconstruct.losses import depth_l1, rgb_loss
 from dcseg.reconstruct.sh import eval_sh
-from dcseg.reconstruct.views import View
+from dcseg.reconstruct.views import View, random_crop
 from dcseg.render import Camera, RenderOutput, render
 
 log = logging.getLogger(__name__)
@@ -214,7 +214,10 @@ def optimise(
     )
     losses: list[float] = []
     for it, index in enumerate(_view_order(len(views), cfg.iterations, generator)):
-        view = views[index] if it < switch or fine_views is None else fine_views[index]
+        if it < switch or fine_views is None:
+            view = views[index]
+        else:
+            view = random_crop(fine_views[index], cfg.full_res_crop, generator)
         losses.append(trainer.step(it, view))
         if on_progress is not None:
             on_progress(it + 1, cfg.iterations, losses[-1])

@@ -79,3 +79,26 @@ def make_view(frame: Frame, downscale: int = 1, device: torch.device | str = "cp
         height=intrinsics.height,
     )
     return View(frame.name, camera, rgb, depth)
+
+
+def random_crop(view: View, fraction: float, generator: torch.Generator) -> View:
+    """A random window of ``view`` covering ``fraction`` of its width and height.
+
+    The window's camera keeps the pose and focal lengths and shifts the principal point, so
+    rendering it gives exactly the same pixels as rendering the whole view and cropping.
+    ``fraction >= 1`` returns ``view`` itself.
+    """
+    cam = view.camera
+    width = max(1, min(cam.width, round(cam.width * fraction)))
+    height = max(1, min(cam.height, round(cam.height * fraction)))
+    if (width, height) == (cam.width, cam.height):
+        return view
+    x0 = int(torch.randint(0, cam.width - width + 1, (1,), generator=generator))
+    y0 = int(torch.randint(0, cam.height - height + 1, (1,), generator=generator))
+    k = cam.K.clone()
+    k[0, 2] -= x0
+    k[1, 2] -= y0
+    window = Camera(cam.c2w, k, width, height)
+    rgb = view.rgb[y0 : y0 + height, x0 : x0 + width]
+    depth = view.depth[y0 : y0 + height, x0 : x0 + width]
+    return View(view.name, window, rgb, depth)

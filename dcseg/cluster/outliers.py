@@ -1,16 +1,16 @@
 """3D outlier removal (method doc Part B.6): drop small, disconnected fragments of clusters.
 
 Each cluster's Gaussian centres form a radius graph; connected components that are too small
-(by count or by weight share) become noise. Memory is O(edges) of the largest cluster's graph.
+(by count or by weight share) become noise. Memory is O(N).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+from dcseg.cluster.components import cluster_components
 
 _SPACING_QUERIES = 100_000
 """At most this many Gaussians are queried to estimate the median nearest-neighbour spacing."""
@@ -40,31 +40,32 @@ def adaptive_radius(positions: NDArray[np.float64], factor: float, seed: int = 0
     return float(factor * np.median(positive)) if positive.size else 0.0
 
 
-def component_labels(positions: NDArray[np.float64], radius: float) -> NDArray[np.int64]:
-    """Connected components of the radius graph (edge iff distance <= radius) -> ``[M]`` ids."""
-    m = len(positions)
-    pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), (m, m))
-    _, comp = connected_components(graph, directed=False)
-    return np.asarray(comp, dtype=np.int64)
-
-
-def _small_components(
-    comp: NDArray[np.int64], weights: NDArray[np.float64], min_size: int, min_fraction: float
+def _fragments(
+    comp: NDArray[np.int64],
+    labels: NDArray[np.int64],
+    weights: NDArray[np.float64],
+    min_size: int,
+    min_fraction: float,
 ) -> NDArray[np.bool_]:
-    """Per member: is its component a fragment (too few Gaussians or too light)?
+    """Per Gaussian: is its component a fragment (too few Gaussians or too light)?
 
     The weight threshold is relative to the cluster's heaviest component, which is therefore
     never dropped for weight: a cluster whose graph falls apart into many similar pieces keeps
-    them, and only fragments much lighter than its main body go.
+    them, and only fragments much lighter than its main body go. A cluster whose total weight
+    is 0 compares Gaussian counts instead.
     """
-    sizes = np.bincount(comp)
-    comp_weight = np.bincount(comp, weights=weights)
-    if comp_weight.max() <= 0:
-        comp_weight = sizes.astype(np.float64)
-    share = comp_weight / comp_weight.max()
-    small = (sizes < min_size) | (share < min_fraction)
-    return np.asarray(small[comp], dtype=np.bool_)
+    member = comp >= 0
+    sizes = np.bincount(comp[member])
+    comp_weight = np.bincount(comp[member], weights=weights[member], minlength=len(sizes))
+    comp_cluster = np.zeros(len(sizes), dtype=np.int64)
+    comp_cluster[comp[member]] = labels[member]
+    n_clusters = int(labels.max()) + 1
+    cluster_weight = np.bincount(comp_cluster, weights=comp_weight, minlength=n_clusters)
+    measure = np.where(cluster_weight[comp_cluster] > 0, comp_weight, sizes.astype(np.float64))
+    heaviest = np.zeros(n_clusters)
+    np.maximum.at(heaviest, comp_cluster, measure)
+    small = (sizes < min_size) | (measure < min_fraction * heaviest[comp_cluster])
+    return member & small[np.maximum(comp, 0)]
 
 
 def remove_outliers_3d(
@@ -78,10 +79,11 @@ def remove_outliers_3d(
 ) -> NDArray[np.int64]:
     """Set Gaussians in small, disconnected fragments of their cluster to -1.
 
-    For every cluster, its Gaussian centres are linked when closer than ``radius``; each
-    connected component with fewer than ``min_component_size`` Gaussians, or lighter than
-    ``min_component_fraction`` x the weight of the cluster's heaviest component, is dropped.
-    Cluster ids are not re-indexed here (a cluster may become empty).
+    For every cluster, its Gaussian centres are linked when closer than ``radius``
+    (:func:`~dcseg.cluster.components.cluster_components`); each connected component with
+    fewer than ``min_component_size`` Gaussians, or lighter than ``min_component_fraction`` x
+    the weight of the cluster's heaviest component, is dropped. Cluster ids are not re-indexed
+    here (a cluster may become empty).
 
     Args:
         positions: ``[N, 3]`` Gaussian centres.
@@ -99,17 +101,10 @@ def remove_outliers_3d(
     if radius <= 0:
         raise ValueError(f"radius must be > 0, got {radius}")
     out = labels.copy()
-    order = np.argsort(labels, kind="stable")
-    bounds = np.searchsorted(labels[order], np.arange(int(labels.max(initial=-1)) + 2))
-    for k in range(len(bounds) - 1):
-        members = order[bounds[k] : bounds[k + 1]]
-        if len(members) == 0:
-            continue
-        comp = component_labels(positions[members], radius)
-        small = _small_components(
-            comp, weights[members], min_component_size, min_component_fraction
-        )
-        out[members[small]] = -1
+    if not np.any(labels >= 0):
+        return out
+    comp = cluster_components(positions, labels, radius)
+    out[_fragments(comp, labels, weights, min_component_size, min_component_fraction)] = -1
     return out
 
 

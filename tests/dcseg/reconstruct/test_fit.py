@@ -94,16 +94,21 @@ def test_config_import_is_torch_free() -> None:
 def test_coarse_to_fine_switches_resolution(monkeypatch: pytest.MonkeyPatch) -> None:
     import dcseg.reconstruct.fit as fit_module
 
-    sizes: list[tuple[int, int]] = []
+    sizes: list[tuple[int, int, float]] = []
     original = fit_module.render_view
 
     def spy(gaussians, camera, degree, backend):  # type: ignore[no-untyped-def]
-        sizes.append((camera.width, camera.height))
+        sizes.append((camera.width, camera.height, round(float(camera.K[0, 0]), 3)))
         return original(gaussians, camera, degree, backend)
 
     monkeypatch.setattr(fit_module, "render_view", spy)
     cfg = replace(TINY, iterations=6, train_downscale=2, full_res_from=4, densify_until=0)
     from dcseg.reconstruct.stage import fit_gaussians as fit
 
-    fit(make_capture(4, 32, 24), cfg)
-    assert sizes[:6] == [(16, 12)] * 4 + [(32, 24)] * 2
+    capture = make_capture(4, 32, 24)
+    fx = capture.frames[0].intrinsics.fx
+    fit(capture, replace(cfg, full_res_crop=1.0))
+    assert sizes == [(16, 12, fx / 2)] * 4 + [(32, 24, fx)] * 2
+    sizes.clear()
+    fit(capture, replace(cfg, full_res_crop=0.5))  # full-resolution windows: full focal length
+    assert sizes == [(16, 12, fx / 2)] * 4 + [(16, 12, fx)] * 2

@@ -100,6 +100,11 @@ def cluster_components(
     cell = np.floor((pos - pos.min(axis=0)) / (radius / math.sqrt(3.0))).astype(np.int64)
     coords = np.concatenate([labels[rows, None], cell], axis=1)
     dims = coords.max(axis=0) + 3
+    if float(np.prod(dims.astype(np.float64))) >= 2.0**62:
+        raise ValueError(
+            f"radius {radius:g} is too small for the scene extent: the cell grid would need "
+            f"{dims[1]}x{dims[2]}x{dims[3]} cells per cluster"
+        )
     keys = ((coords[:, 0] * dims[1] + coords[:, 1]) * dims[2] + coords[:, 2]) * dims[3]
     keys += coords[:, 3]
     order = np.argsort(keys, kind="stable")

@@ -57,3 +57,9 @@ def test_boundary_distance_links_and_empty_input() -> None:
     comp = cluster_components(positions, labels, 0.1)
     assert comp[0] == comp[1] != comp[2] and comp[3] not in comp[:3]
     assert np.all(cluster_components(positions, np.full(4, -1), 0.1) == -1)
+
+
+def test_radius_too_small_for_the_extent_is_rejected() -> None:
+    positions = np.array([[0.0, 0, 0], [1e9, 1e9, 1e9]])
+    with pytest.raises(ValueError, match="too small for the scene extent"):
+        cluster_components(positions, np.array([0, 0]), 1e-3)

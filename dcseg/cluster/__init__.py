@@ -1,7 +1,7 @@
 """Stage: affinity features of Gaussians -> instance clusters (method doc §4, Part B.6).
 
-Entry point: :func:`cluster_features`. Importing this package does not import torch or
-HDBSCAN; the backend is imported when clustering runs.
+Entry point: :func:`cluster_features`. Importing this package does not import torch, HDBSCAN,
+scikit-learn or numba (the API image has none of them); they are imported when clustering runs.
 """
 
 from dcseg.cluster.backends import (

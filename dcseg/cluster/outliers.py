@@ -10,8 +10,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from dcseg.cluster.components import cluster_components
-
 _SPACING_QUERIES = 100_000
 """At most this many Gaussians are queried to estimate the median nearest-neighbour spacing."""
 
@@ -103,6 +101,8 @@ def remove_outliers_3d(
     out = labels.copy()
     if not np.any(labels >= 0):
         return out
+    from dcseg.cluster.components import cluster_components  # numba: not in the API image
+
     comp = cluster_components(positions, labels, radius)
     out[_fragments(comp, labels, weights, min_component_size, min_component_fraction)] = -1
     return out

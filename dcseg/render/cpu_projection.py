@@ -49,6 +49,20 @@ def _numpy(t: Tensor) -> np.ndarray[Any, Any]:
     return np.ascontiguousarray(t.detach().cpu().numpy())
 
 
+def _depth_order(
+    depths: np.ndarray[Any, Any], visible: np.ndarray[Any, Any], dtype: np.dtype[Any]
+) -> np.ndarray[Any, Any]:
+    """Indices of the visible Gaussians, nearest first, ties in index order.
+
+    Depths are compared in the input precision ``dtype`` (as the PyTorch projection compares
+    them); visible depths are positive and finite, so their bit patterns sort like the values.
+    """
+    keep = np.flatnonzero(visible)
+    keys = depths[keep].astype(dtype)
+    bits = keys.view(np.uint32 if keys.itemsize == 4 else np.uint64)
+    return keep[npj.radix_argsort(bits)]
+
+
 class ProjectGaussians(torch.autograd.Function):
     """Differentiable projection of Gaussians to depth-sorted splats with the numba kernels."""
 
@@ -64,19 +78,17 @@ class ProjectGaussians(torch.autograd.Function):
         depths, means2d, conics, opac, radii, visible = npj.project_all(
             arrays[0], arrays[1], arrays[2], arrays[3], view, intr, near
         )
-        keep = np.flatnonzero(visible)
-        sort_keys = depths[keep].astype(arrays[0].dtype)  # ties as in the input precision
-        index = keep[np.argsort(sort_keys, kind="stable")]
-        tile_min, tile_max = npj.tile_rects(
-            means2d[index], radii[index], *tile_grid(camera.width, camera.height)
-        )
+        index = _depth_order(depths, visible, arrays[0].dtype)
+        gathered = npj.gather_splats(
+            index, arrays[0][:0], means2d, conics, opac, depths, radii,
+            *tile_grid(camera.width, camera.height),
+        )  # fmt: skip
         ctx.camera = (view, intr)
         index_t = torch.from_numpy(index)
         ctx.save_for_backward(means, quats, log_scales, logits, index_t)
-        out = [torch.from_numpy(a[index]).to(dtype) for a in (means2d, conics, opac, depths)]
-        tiles = torch.from_numpy(tile_min), torch.from_numpy(tile_max)
-        ctx.mark_non_differentiable(index_t, *tiles)
-        return (*out, index_t, *tiles)
+        out = [torch.from_numpy(a) for a in gathered]
+        ctx.mark_non_differentiable(index_t, *out[4:])
+        return (*out[:4], index_t, *out[4:])
 
     @staticmethod
     @once_differentiable  # type: ignore[misc]
@@ -95,5 +107,5 @@ class ProjectGaussians(torch.autograd.Function):
             _numpy(index), arrays[0], arrays[1], arrays[2], arrays[3], view, intr,
             g[0], g[1], g[2], g[3],
         )  # fmt: skip
-        result = [torch.from_numpy(a).to(means.dtype) for a in out]
+        result = [torch.from_numpy(a) for a in out]
         return (*result, None)

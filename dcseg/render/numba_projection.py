@@ -199,18 +199,66 @@ def _visible(
 
 
 @_jit(parallel=False)
-def tile_rects(means2d: Array, radii: Array, tiles_x: int, tiles_y: int) -> tuple[Array, Array]:
-    """First and one-past-last tile (x, y) ``[M, 2]`` int64 of each splat's bounding box."""
-    n = means2d.shape[0]
-    lo, hi = np.empty((n, 2), dtype=np.int64), np.empty((n, 2), dtype=np.int64)
-    limit = (tiles_x, tiles_y)
-    for i in range(n):
+def radix_argsort(keys: Array) -> Array:
+    """Stable argsort of unsigned integer ``keys`` (uint32 or uint64): LSD radix sort by bytes.
+
+    Passes whose byte is the same for every key are skipped. For non-negative floats the bit
+    patterns sort like the values, so this is ``np.argsort(values, kind="stable")`` in ~1/5 of
+    the time (58k keys: ~1 ms instead of ~5 ms).
+    """
+    n = keys.shape[0]
+    order, spare = np.arange(n), np.empty(n, dtype=np.int64)
+    current, other = keys.copy(), np.empty_like(keys)
+    for byte in range(keys.itemsize):
+        shift = np.uint64(8 * byte)  # unsigned: numba promotes mixed signedness to float
+        counts = np.zeros(257, dtype=np.int64)
+        for i in range(n):
+            counts[np.int64((current[i] >> shift) & np.uint64(255)) + 1] += 1
+        if counts.max() == n:
+            continue  # every key has this byte: the pass would not move anything
+        starts = np.cumsum(counts)
+        for i in range(n):
+            bucket = np.int64((current[i] >> shift) & np.uint64(255))
+            slot = starts[bucket]
+            starts[bucket] += 1
+            other[slot], spare[slot] = current[i], order[i]
+        current, other = other, current
+        order, spare = spare, order
+    return order
+
+
+@_jit(parallel=True)
+def gather_splats(
+    index: Array,
+    like: Array,
+    means2d: Array,
+    conics: Array,
+    opacities: Array,
+    depths: Array,
+    radii: Array,
+    tiles_x: int,
+    tiles_y: int,
+) -> tuple[Array, Array, Array, Array, Array, Array]:
+    """The rows ``index`` of the projection's outputs in the dtype of ``like``, plus each splat's
+    first and one-past-last tile (x, y) ``[M, 2]`` int64 of its bounding box (one fused pass)."""
+    m = index.shape[0]
+    out_means = np.empty((m, 2), dtype=like.dtype)
+    out_conics = np.empty((m, 3), dtype=like.dtype)
+    out_opac, out_depths = np.empty(m, dtype=like.dtype), np.empty(m, dtype=like.dtype)
+    lo, hi = np.empty((m, 2), dtype=np.int64), np.empty((m, 2), dtype=np.int64)
+    for k in prange(m):
+        i = index[k]
+        for c in range(3):
+            out_conics[k, c] = conics[i, c]
+        out_opac[k], out_depths[k] = opacities[i], depths[i]
         for d in range(2):
+            out_means[k, d] = means2d[i, d]
+            limit = tiles_x if d == 0 else tiles_y
             centre = (means2d[i, d] + 0.5) / TILE_SIZE
             half = radii[i, d] / TILE_SIZE
-            lo[i, d] = min(max(math.floor(centre - half), 0), limit[d])
-            hi[i, d] = min(max(math.ceil(centre + half), 0), limit[d])
-    return lo, hi
+            lo[k, d] = min(max(math.floor(centre - half), 0), limit)
+            hi[k, d] = min(max(math.ceil(centre + half), 0), limit)
+    return out_means, out_conics, out_opac, out_depths, lo, hi
 
 
 @_jit(parallel=True)
@@ -227,14 +275,15 @@ def project_backward(
     grad_opac: Array,
     grad_depths: Array,
 ) -> tuple[Array, Array, Array, Array]:
-    """Gradients for means ``[N, 3]``, quats ``[N, 4]``, log scales ``[N, 3]`` and logits ``[N]``.
+    """Gradients for means ``[N, 3]``, quats ``[N, 4]``, log scales ``[N, 3]`` and logits ``[N]``
+    in the dtype of ``means``.
 
     ``index [M]`` lists the projected Gaussians (distinct), the ``grad_*`` arrays are the
     gradients of their outputs in that order; Gaussians not in ``index`` get zeros.
     """
-    n, m = means.shape[0], index.shape[0]
-    g_means, g_quats = np.zeros((n, 3)), np.zeros((n, 4))
-    g_scales, g_logits = np.zeros((n, 3)), np.zeros(n)
+    n, m, dtype = means.shape[0], index.shape[0], means.dtype
+    g_means, g_quats = np.zeros((n, 3), dtype=dtype), np.zeros((n, 4), dtype=dtype)
+    g_scales, g_logits = np.zeros((n, 3), dtype=dtype), np.zeros(n, dtype=dtype)
     for chunk in prange((m + CHUNK - 1) // CHUNK):
         work = np.empty((WORK_ROWS, 3))
         for k in range(chunk * CHUNK, min(m, (chunk + 1) * CHUNK)):

@@ -76,8 +76,8 @@ class RasterizeSplats(torch.autograd.Function):
                 m, k, o, v, off, idx, _numpy(t_final), _numpy(n_contrib), grad, tiles_x,
                 *ctx.shares,
             )  # fmt: skip
-        sums = torch.zeros(values.shape[0], per_isect.shape[1], dtype=values.dtype)
-        sums.index_add_(0, ids.long(), torch.from_numpy(per_isect))
+            threads = numba.get_num_threads()
+            sums = torch.from_numpy(nk.sum_by_splat(per_isect, idx, values.shape[0], threads))
         return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 6:], None, None, None
 
 

@@ -374,6 +374,7 @@ def sum_by_splat(per_isect: Array, ids: Array, n_splats: int, parts: int) -> Arr
                     sums[g, c] += per_isect[k, c]
     return sums
 
+
 @_jit(parallel=False)
 def _dot(values: Array, g: int, grad_out: Array, py: int, px: int) -> float:
     """``values[g] . grad_out[py, px]`` with four independent partial sums.

@@ -170,8 +170,8 @@ then full-resolution windows of half the width and height. The windows replaced 
 full-resolution views (same hour, 40-view 320x240 synthetic scene): a window step costs 139 ms
 instead of 446 ms at 120k Gaussians; held-out PSNR 27.96 -> 27.10 dB, depth MAE 1.50 -> 1.59 cm
 (README, Performance, for times). Switching to windows at step 600 saved no time (26.80 dB).
-A variant that meets 3 minutes (0.4 windows from step 600, at most 100k Gaussians: 26.49 dB,
-1.66 cm, 180 s) lost 9 segmentation mIoU points at default mask noise (78.3 vs 87.4, mean over
+A variant that does less work (0.4 windows from step 600, at most 100k Gaussians: 26.49 dB,
+1.66 cm, 180 s where this preset then took 229 s) lost 9 segmentation mIoU points at default mask noise (78.3 vs 87.4, mean over
 four clustering seeds; the duck merges with its tray, blocks and dominoes suffer)."""
 
 PRESETS: dict[str, ReconstructConfig] = {"fast": FAST, "paper": PAPER}

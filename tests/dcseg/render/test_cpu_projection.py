@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -127,7 +128,7 @@ def test_boundary_cases_match_torch_projection(dtype: torch.dtype) -> None:
 def test_radix_argsort_is_a_stable_argsort(dtype: type, bits: type, n: int) -> None:
     """Positive floats (a third of them tied) sorted by their bit patterns as numpy sorts them."""
     rng = np.random.default_rng(n)
-    values = rng.uniform(0.01, 10.0, n).astype(dtype)
+    values: np.ndarray[Any, Any] = rng.uniform(0.01, 10.0, n).astype(dtype)
     values[: n // 3] = values[n // 3 : 2 * (n // 3)]
     rng.shuffle(values)
     expected = np.argsort(values, kind="stable")

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import torch
 from torch import Tensor
 
 from dcseg.gaussians import Gaussians
 from dcseg.render.backend import select_backend
 from dcseg.render.camera import Camera, RenderOutput
 from dcseg.render.projection import Splats, project
-from dcseg.render.torch_renderer import rasterize_reference
+from dcseg.render.torch_renderer import composite_reference
 
-Rasterizer = Callable[[Splats, Tensor, int, int], Tensor]
+Compositor = Callable[[Splats, Tensor, int, int], Tensor]
+"""``(splats, values [N, C], W, H) -> [H, W, C + 2]``: values, depth times alpha, alpha."""
 Projector = Callable[[Gaussians, Camera], Splats]
 
 
@@ -57,24 +57,21 @@ def render(
     return _with_background(_render_splats(gaussians, values, camera, name), background)
 
 
-def _stages(name: str) -> tuple[Projector, Rasterizer]:
-    """The projection and rasterizer of a backend: numba for ``cpu``, PyTorch otherwise."""
+def _stages(name: str) -> tuple[Projector, Compositor]:
+    """The projection and compositor of a backend: numba for ``cpu``, PyTorch otherwise."""
     if name == "cpu":
         from dcseg.render.cpu_projection import project_cpu
-        from dcseg.render.cpu_renderer import rasterize_cpu
+        from dcseg.render.cpu_renderer import composite_cpu
 
-        return project_cpu, rasterize_cpu
-    return project, rasterize_reference
+        return project_cpu, composite_cpu
+    return project, composite_reference
 
 
 def _render_splats(gaussians: Gaussians, values: Tensor, camera: Camera, name: str) -> RenderOutput:
-    """Project, then composite ``[values, z, 1]`` so depth and alpha come out of one pass."""
-    projector, rasterizer = _stages(name)
+    """Project, then composite values, depth and alpha in one pass."""
+    projector, compositor = _stages(name)
     splats = projector(gaussians, camera)
-    ones = torch.ones_like(splats.depths)[:, None]
-    picked = values[splats.index].to(splats.depths.dtype)
-    stacked = torch.cat([picked, splats.depths[:, None], ones], dim=1)
-    image = rasterizer(splats, stacked, camera.width, camera.height)
+    image = compositor(splats, values, camera.width, camera.height)
     channels = values.shape[1]
     alpha = image[..., channels + 1]
     depth = image[..., channels] / alpha.clamp_min(1e-10)

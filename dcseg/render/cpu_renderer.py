@@ -1,10 +1,12 @@
 """The ``cpu`` backend: numba kernels wrapped in a ``torch.autograd.Function``.
 
-Projection runs in :mod:`dcseg.render.cpu_projection`; the Function here maps
-(means2d [M, 2], conics [M, 3], opacities [M], values [M, C]) to an ``[H, W, C]`` image. The
-forward saves only its inputs, the tile lists, the final transmittance ``[H, W]`` and the
-per-pixel count of tile-list entries up to the last contributor ``[H, W]``; the backward
-recomputes alphas back to front (as 3DGS does). Peak extra memory is O(H W + n_isect (6 + C)).
+Projection runs in :mod:`dcseg.render.cpu_projection`; the Function here maps the splats
+(means2d [M, 2], conics [M, 3], opacities [M], depths [M]) with per-Gaussian values [N, C] and
+the splats' Gaussian index [M] to an ``[H, W, C + 2]`` image (values, depth times alpha,
+alpha). The forward saves only its inputs, the tile lists, the final transmittance ``[H, W]``
+and the per-pixel count of tile-list entries up to the last contributor ``[H, W]``; the
+backward recomputes alphas back to front (as 3DGS does). Peak extra memory is
+O(H W + n_isect (7 + C)).
 
 Deployment note: torch and numba each run an OpenMP pool; with the default (spinning) wait policy
 the two pools, and any other load, fight over the cores and the torch part can slow down 5-20x on
@@ -38,25 +40,28 @@ class RasterizeSplats(torch.autograd.Function):
         means2d: Tensor,
         conics: Tensor,
         opacities: Tensor,
+        depths: Tensor,
         values: Tensor,
+        index: Tensor,
         offsets: Tensor,
         ids: Tensor,
         size: tuple[int, int],
     ) -> Tensor:
-        """Composite ``values [M, C]`` into an ``[H, W, C]`` image; ``size`` is (W, H)."""
+        """Composite ``[values[index], depths, 1]`` into an ``[H, W, C + 2]`` image; ``values``
+        is ``[N, C]`` per Gaussian, the splat tensors are ``[M, ...]``; ``size`` is (W, H)."""
         width, height = size
-        m, k, o, v, off, idx = (
-            _numpy(t) for t in (means2d, conics, opacities, values, offsets, ids)
+        m, k, o, d, v, ix, off, idx = (
+            _numpy(t) for t in (means2d, conics, opacities, depths, values, index, offsets, ids)
         )
         with _quiet():
             tiles_x = tile_grid(width, height)[0]
             shares = nk.balanced_tiles(off, numba.get_num_threads())
             image, t_final, n_contrib = nk.forward(
-                m, k, o, v, off, idx, width, height, tiles_x, *shares
+                m, k, o, d, v, ix, off, idx, width, height, tiles_x, *shares
             )
         ctx.size, ctx.shares = size, shares
         ctx.save_for_backward(
-            means2d, conics, opacities, values, offsets, ids,
+            means2d, conics, opacities, depths, values, index, offsets, ids,
             torch.from_numpy(t_final), torch.from_numpy(n_contrib),
         )  # fmt: skip
         return torch.from_numpy(image)
@@ -64,27 +69,34 @@ class RasterizeSplats(torch.autograd.Function):
     @staticmethod
     @once_differentiable  # type: ignore[misc]
     def backward(ctx: Any, grad_image: Tensor) -> tuple[Tensor | None, ...]:
-        """Gradients for means2d, conics, opacities and values (None for the rest)."""
-        means2d, conics, opacities, values, offsets, ids, t_final, n_contrib = ctx.saved_tensors
+        """Gradients for means2d, conics, opacities, depths and values (None for the rest)."""
+        saved = ctx.saved_tensors
+        values, index = saved[4], saved[5]
         tiles_x = tile_grid(*ctx.size)[0]
-        m, k, o, v, off, idx = (
-            _numpy(t) for t in (means2d, conics, opacities, values, offsets, ids)
-        )
+        m, k, o, d, v, ix, off, idx, t_final, n_contrib = (_numpy(t) for t in saved)
         grad = _numpy(grad_image.to(values.dtype))
         with _quiet():
             per_isect = nk.backward(
-                m, k, o, v, off, idx, _numpy(t_final), _numpy(n_contrib), grad, tiles_x,
-                *ctx.shares,
-            )  # fmt: skip
+                m, k, o, d, v, ix, off, idx, t_final, n_contrib, grad, tiles_x, *ctx.shares
+            )
             threads = numba.get_num_threads()
-            sums = torch.from_numpy(nk.sum_by_splat(per_isect, idx, values.shape[0], threads))
-        return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 6:], None, None, None
+            sums = torch.from_numpy(nk.sum_by_splat(per_isect, idx, index.shape[0], threads))
+        channels = values.shape[1]
+        grad_values = torch.zeros_like(values).index_copy_(0, index, sums[:, 6 : 6 + channels])
+        grad_depths = sums[:, 6 + channels]
+        return (
+            sums[:, 0:2], sums[:, 2:5], sums[:, 5], grad_depths, grad_values,
+            None, None, None, None,
+        )  # fmt: skip
 
 
-def rasterize_cpu(splats: Splats, values: Tensor, width: int, height: int) -> Tensor:
-    """Composite ``values [M, C]`` of depth-sorted splats into an ``[H, W, C]`` image.
+def composite_cpu(splats: Splats, values: Tensor, width: int, height: int) -> Tensor:
+    """``[H, W, C + 2]``: per-Gaussian ``values [N, C]``, expected depth times alpha and alpha
+    of depth-sorted splats, alpha-composited.
 
-    Same contract as :func:`dcseg.render.torch_renderer.rasterize_reference`.
+    Same contract as :func:`dcseg.render.torch_renderer.composite_reference`; the splat's
+    Gaussian is looked up inside the kernels (no ``[M, C + 2]`` per-splat copy, and the value
+    gradients go straight to the Gaussians: the projection's ``index`` is distinct).
     """
     tiles_x, tiles_y = tile_grid(width, height)
     with _quiet():
@@ -92,7 +104,8 @@ def rasterize_cpu(splats: Splats, values: Tensor, width: int, height: int) -> Te
             _numpy(splats.tile_min), _numpy(splats.tile_max), tiles_x * tiles_y, tiles_x
         )
     out: Tensor = RasterizeSplats.apply(  # type: ignore[no-untyped-call]
-        splats.means2d, splats.conics, splats.opacities, values,
+        splats.means2d, splats.conics, splats.opacities, splats.depths,
+        values.to(splats.depths.dtype), splats.index,
         torch.from_numpy(offsets), torch.from_numpy(ids), (width, height),
     )  # fmt: skip
     return out

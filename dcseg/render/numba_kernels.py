@@ -155,7 +155,9 @@ def forward(
     means2d: Array,
     conics: Array,
     opacities: Array,
+    depths: Array,
     values: Array,
+    index: Array,
     offsets: Array,
     ids: Array,
     width: int,
@@ -166,19 +168,22 @@ def forward(
 ) -> tuple[Array, Array, Array]:
     """Front-to-back alpha compositing; ``order`` and ``starts`` from :func:`balanced_tiles`.
 
+    Splat ``g`` carries ``values[index[g]]`` (``values [N, C]`` per Gaussian) and ``depths[g]``.
+
     Returns:
-        ``image [H, W, C]``, final transmittance ``[H, W]`` and the number of tile-list entries
-        up to and including each pixel's last contributor ``[H, W]`` int32.
+        ``image [H, W, C + 2]`` (values, weighted depth, alpha), final transmittance ``[H, W]``
+        and the number of tile-list entries up to and including each pixel's last contributor
+        ``[H, W]`` int32.
     """
-    out = np.zeros((height, width, values.shape[1]), dtype=values.dtype)
+    out = np.zeros((height, width, values.shape[1] + 2), dtype=values.dtype)
     t_final = np.ones((height, width), dtype=values.dtype)
     n_contrib = np.zeros((height, width), dtype=np.int32)
     coords, consts = _typed(values, max(width, height))
     for worker in prange(starts.shape[0] - 1):
         for tile in order[starts[worker] : starts[worker + 1]]:
             _forward_tile(
-                tile, means2d, conics, opacities, values, offsets, ids, tiles_x, out, t_final,
-                n_contrib, coords, consts,
+                tile, means2d, conics, opacities, depths, values, index, offsets, ids, tiles_x,
+                out, t_final, n_contrib, coords, consts,
             )  # fmt: skip
     return out, t_final, n_contrib
 
@@ -189,7 +194,9 @@ def _forward_tile(
     means2d: Array,
     conics: Array,
     opacities: Array,
+    depths: Array,
     values: Array,
+    index: Array,
     offsets: Array,
     ids: Array,
     tiles_x: int,
@@ -218,8 +225,8 @@ def _forward_tile(
             opacities[g], box,
         ):  # fmt: skip
             n_done += _forward_splat(
-                k - start, g, box, x0, y0, means2d, conics, opacities, values, out,
-                trans, done, last, coords, consts,
+                k - start, g, box, x0, y0, means2d, conics, opacities, depths, values, index,
+                out, trans, done, last, coords, consts,
             )  # fmt: skip
             if n_done == n_pix:
                 break
@@ -239,7 +246,9 @@ def _forward_splat(
     means2d: Array,
     conics: Array,
     opacities: Array,
+    depths: Array,
     values: Array,
+    index: Array,
     out: Array,
     trans: Array,
     done: Array,
@@ -252,7 +261,7 @@ def _forward_splat(
     half, one, alpha_max, alpha_min, t_min = consts[0], consts[1], consts[2], consts[3], consts[4]
     mx, my = means2d[g, 0], means2d[g, 1]
     a, b, c = conics[g, 0], conics[g, 1], conics[g, 2]
-    opacity = opacities[g]
+    opacity, depth, source = opacities[g], depths[g], index[g]
     cut = _sigma_cut(opacity)
     finished = 0
     for py in range(box[2], box[3] + 1):
@@ -275,7 +284,9 @@ def _forward_splat(
                 continue
             weight = alpha * trans[i, j]
             for ch in range(channels):
-                out[py, px, ch] += weight * values[g, ch]
+                out[py, px, ch] += weight * values[source, ch]
+            out[py, px, channels] += weight * depth
+            out[py, px, channels + 1] += weight
             trans[i, j] = next_t
             last[i, j] = local + 1
     return finished
@@ -286,7 +297,9 @@ def backward(
     means2d: Array,
     conics: Array,
     opacities: Array,
+    depths: Array,
     values: Array,
+    index: Array,
     offsets: Array,
     ids: Array,
     t_final: Array,
@@ -296,19 +309,20 @@ def backward(
     order: Array,
     starts: Array,
 ) -> Array:
-    """Gradients of ``sum(grad_out * image)`` per tile-list entry (tiles shared as in forward).
+    """Gradients of ``sum(grad_out * image)`` per tile-list entry (tiles shared as in forward);
+    ``grad_out`` is ``[H, W, C + 2]`` like the forward's image.
 
     Returns:
-        ``[n_isect, 6 + C]``: d/d(mean x, mean y, conic a, b, c, opacity, values...) for each
-        (tile, splat) entry of ``ids``; the caller sums rows by splat id.
+        ``[n_isect, 7 + C]``: d/d(mean x, mean y, conic a, b, c, opacity, values..., depth) for
+        each (tile, splat) entry of ``ids``; the caller sums rows by splat id.
     """
-    grads = np.zeros((ids.shape[0], 6 + values.shape[1]), dtype=values.dtype)
+    grads = np.zeros((ids.shape[0], 7 + values.shape[1]), dtype=values.dtype)
     coords, consts = _typed(values, max(grad_out.shape[0], grad_out.shape[1]))
     for worker in prange(starts.shape[0] - 1):
         for tile in order[starts[worker] : starts[worker + 1]]:
             _backward_tile(
-                tile, means2d, conics, opacities, values, offsets, ids, t_final, n_contrib,
-                grad_out, tiles_x, grads, coords, consts,
+                tile, means2d, conics, opacities, depths, values, index, offsets, ids, t_final,
+                n_contrib, grad_out, tiles_x, grads, coords, consts,
             )  # fmt: skip
     return grads
 
@@ -319,7 +333,9 @@ def _backward_tile(
     means2d: Array,
     conics: Array,
     opacities: Array,
+    depths: Array,
     values: Array,
+    index: Array,
     offsets: Array,
     ids: Array,
     t_final: Array,
@@ -352,8 +368,8 @@ def _backward_tile(
             opacities[g], box,
         ):  # fmt: skip
             _backward_splat(
-                k - start, g, box, x0, y0, means2d, conics, opacities, values, grad_out,
-                trans, later, last, grads, k, coords, consts,
+                k - start, g, box, x0, y0, means2d, conics, opacities, depths, values, index,
+                grad_out, trans, later, last, grads, k, coords, consts,
             )  # fmt: skip
 
 
@@ -405,7 +421,9 @@ def _backward_splat(
     means2d: Array,
     conics: Array,
     opacities: Array,
+    depths: Array,
     values: Array,
+    index: Array,
     grad_out: Array,
     trans: Array,
     later: Array,
@@ -420,7 +438,7 @@ def _backward_splat(
     half, one, alpha_max, alpha_min = consts[0], consts[1], consts[2], consts[3]
     mx, my = means2d[g, 0], means2d[g, 1]
     a, b, c = conics[g, 0], conics[g, 1], conics[g, 2]
-    opacity = opacities[g]
+    opacity, depth, source = opacities[g], depths[g], index[g]
     cut = _sigma_cut(opacity)
     g_mx = g_my = g_a = g_b = g_c = g_o = 0.0  # local sums: no store per pixel
     for py in range(box[2], box[3] + 1):
@@ -442,8 +460,9 @@ def _backward_splat(
             t_before = trans[i, j] * inv
             trans[i, j] = t_before
             weight = alpha * t_before
-            v_dot_g = _dot(values, g, grad_out, py, px)
-            for ch in range(channels):
+            v_dot_g = _dot(values, source, grad_out, py, px)
+            v_dot_g += depth * grad_out[py, px, channels] + grad_out[py, px, channels + 1]
+            for ch in range(channels + 1):  # the values, then the depth
                 grads[row, 6 + ch] += weight * grad_out[py, px, ch]
             d_alpha = t_before * v_dot_g - later[i, j] * inv
             later[i, j] += weight * v_dot_g

@@ -40,6 +40,18 @@ def rasterize_reference(splats: Splats, values: Tensor, width: int, height: int)
     return torch.cat(rows, dim=0)[:height, :width]
 
 
+def composite_reference(splats: Splats, values: Tensor, width: int, height: int) -> Tensor:
+    """``[H, W, C + 2]``: per-Gaussian ``values [N, C]``, expected depth times alpha and alpha.
+
+    Composites ``[values[splats.index], depth, 1]`` per splat with :func:`rasterize_reference`,
+    so depth and alpha come out of the same pass as the values.
+    """
+    ones = torch.ones_like(splats.depths)[:, None]
+    picked = values[splats.index].to(splats.depths.dtype)
+    stacked = torch.cat([picked, splats.depths[:, None], ones], dim=1)
+    return rasterize_reference(splats, stacked, width, height)
+
+
 def _tile(splats: Splats, values: Tensor, tx: int, ty: int) -> Tensor:
     """The ``[TILE, TILE, C]`` composite of tile (tx, ty) (pixels past the image are cropped)."""
     corner = torch.tensor([tx, ty], device=splats.tile_min.device)

@@ -13,7 +13,7 @@ import dcseg.render
 from dcseg.gaussians import Gaussians
 from dcseg.render import BACKEND_ENV, Camera, render, select_backend
 from dcseg.render.gsplat_renderer import _arguments
-from dcseg.render.torch_renderer import rasterize_reference
+from dcseg.render.torch_renderer import composite_reference
 from dcseg.types import Frame, Intrinsics
 from tests.dcseg.render import scenes
 
@@ -189,9 +189,9 @@ def test_env_variable_routes_render(monkeypatch: pytest.MonkeyPatch) -> None:
 
     def spy(*args: Any) -> torch.Tensor:
         calls.append("reference")
-        return rasterize_reference(*args)
+        return composite_reference(*args)
 
-    monkeypatch.setattr("dcseg.render.api.rasterize_reference", spy)
+    monkeypatch.setattr("dcseg.render.api.composite_reference", spy)
     monkeypatch.setenv(BACKEND_ENV, "reference")
     render(_gaussians([[0.0, 0.0, 2.0]], -2.0, 0.0), torch.ones(1, 1), scenes.camera())
     assert calls == ["reference"]

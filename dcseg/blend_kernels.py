@@ -62,3 +62,31 @@ def dominant_group(
             if winner >= 0 and best >= min_weight:
                 out[p] = winner
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def add_class_agreement(
+    offsets: Array,
+    ids: Array,
+    weights: Array,
+    pixel_class: Array,
+    gaussian_class: Array,
+    agree: Array,
+    total: Array,
+) -> None:
+    """Add one view's class evidence per Gaussian into ``agree`` and ``total`` (in place).
+
+    For every contribution of a pixel with a class (``pixel_class >= 0``), its weight goes to
+    its Gaussian's ``total``, and also to ``agree`` when the pixel's class is the Gaussian's
+    ``gaussian_class``. Serial: one O(nnz) pass, accumulated in float64.
+    """
+    for p in range(offsets.shape[0] - 1):
+        c = pixel_class[p]
+        if c < 0:
+            continue
+        for k in range(offsets[p], offsets[p + 1]):
+            g = ids[k]
+            w = np.float64(weights[k])
+            total[g] += w
+            if gaussian_class[g] == c:
+                agree[g] += w

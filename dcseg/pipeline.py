@@ -15,8 +15,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
+from dcseg.assign.consistency import inconsistent
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.cluster.features import Clustering
+from dcseg.cluster.outliers import compact_labels
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import CacheConfig, PipelineConfig
 from dcseg.evaluate.points import transfer_nearest, vote_projection
@@ -25,7 +27,7 @@ from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import ViewState
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
-from dcseg.segment import cluster_map, label_map
+from dcseg.segment import class_agreement, cluster_map, label_map
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
 
 Progress = Callable[[str, float, str], None]
@@ -135,25 +137,67 @@ def segment_scene(
     cfg: PipelineConfig,
     on_progress: Progress = _quiet,
 ) -> Segmentation:
-    """Cluster at ``cfg.scale``, render cluster maps, and label clusters from class masks."""
+    """Cluster at ``cfg.scale``, render cluster maps, and label clusters from class masks.
+
+    With ``cfg.assign.min_class_share > 0``, Gaussians whose own class-mask evidence
+    contradicts their cluster's class then leave it (:mod:`dcseg.assign.consistency`),
+    clusters left empty are removed, and the cluster maps are rendered again; the votes stay
+    those of the first maps.
+    """
     features = gated_features(trained.affinity, cfg.scale)
     g = trained.gaussians
     clustering = cluster_features(features, g.means, g.opacities(), cfg.cluster)
     k = int(clustering.centers.shape[0])
     on_progress("cluster", 1.0, f"{k} clusters")
-    maps = {}
-    for i, view in enumerate(trained.views):
-        maps[view.name] = cluster_map(view.blend, clustering.labels, cfg.masks)
-        on_progress("masks", (i + 1) / len(trained.views), f"view {view.name}")
+    maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress)
     labelled = [name for name in maps if name in semantic]
     assignment = assign_labels(
         [maps[n] for n in labelled], [semantic[n].classes for n in labelled], k, n_classes,
         cfg.assign,
     )  # fmt: skip
     on_progress("assign", 1.0, f"{int((assignment.labels >= 0).sum())} of {k} clusters labelled")
+    if cfg.assign.min_class_share > 0 and labelled:
+        clustering, assignment = _drop_inconsistent(trained, semantic, clustering, assignment, cfg)
+        maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, "refine")
     semantic_ids = label_map(clustering.labels, assignment.labels)
     label_maps = {name: label_map(ids, assignment.labels) for name, ids in maps.items()}
     return Segmentation(clustering, assignment, semantic_ids, maps, label_maps)
+
+
+def _cluster_maps(
+    views: Sequence[ViewState],
+    cluster_labels: NDArray[np.int64],
+    cfg: PipelineConfig,
+    on_progress: Progress,
+    stage: str = "masks",
+) -> dict[str, NDArray[np.int64]]:
+    maps = {}
+    for i, view in enumerate(views):
+        maps[view.name] = cluster_map(view.blend, cluster_labels, cfg.masks)
+        on_progress(stage, (i + 1) / len(views), f"view {view.name}")
+    return maps
+
+
+def _drop_inconsistent(
+    trained: TrainedScene,
+    semantic: Mapping[str, SemanticMap],
+    clustering: Clustering,
+    assignment: Assignment,
+    cfg: PipelineConfig,
+) -> tuple[Clustering, Assignment]:
+    """Gaussians contradicted by their own class evidence become noise; empty clusters go."""
+    views = [v for v in trained.views if v.name in semantic]
+    classes = label_map(clustering.labels, assignment.labels)
+    agree, total = class_agreement(
+        [v.blend for v in views], [semantic[v.name].classes for v in views], classes
+    )
+    labels = clustering.labels.copy()
+    labels[inconsistent(classes, agree, total, cfg.assign.min_class_share)] = -1
+    used = np.bincount(labels[labels >= 0], minlength=clustering.n_clusters) > 0
+    labels, centers = compact_labels(labels, clustering.centers)
+    a = assignment
+    kept = Assignment(a.labels[used], a.scores[used], a.votes[used], a.n_views[used])
+    return Clustering(labels, centers, clustering.scores.copy()), kept
 
 
 def evaluate_segmentation(

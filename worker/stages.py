@@ -160,7 +160,7 @@ def resolve_device(device: str) -> str:
 TRAIN_WEIGHTS = {"cache": 0.1, "affinity": 0.9}
 """Share of the train stage's time in each of the library's sub-stages."""
 
-SEGMENT_WEIGHTS = {"cluster": 0.4, "masks": 0.3, "assign": 0.3}
+SEGMENT_WEIGHTS = {"cluster": 0.35, "masks": 0.2, "assign": 0.2, "refine": 0.25}
 """Share of the segment stage's time in each of the library's sub-stages."""
 
 

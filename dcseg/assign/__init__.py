@@ -5,6 +5,7 @@ cluster-id maps rendered from the clustering, class maps from ``SemanticMap.clas
 """
 
 from dcseg.assign.config import AssignConfig
+from dcseg.assign.consistency import inconsistent
 from dcseg.assign.masks import clean_cluster_map, component_counts, mask_iou
 from dcseg.assign.matching import Match, class_replicas, match_view
 from dcseg.assign.stage import Assignment, assign_labels, view_matches
@@ -19,6 +20,7 @@ __all__ = [
     "clean_cluster_map",
     "component_counts",
     "decide",
+    "inconsistent",
     "mask_iou",
     "match_view",
     "tally",

@@ -13,12 +13,14 @@ from dcseg._lazy import lazy_exports
 
 if TYPE_CHECKING:
     from dcseg.segment.config import MaskConfig
+    from dcseg.segment.evidence import class_agreement
     from dcseg.segment.maps import cluster_map, label_map
 
-__all__ = ["MaskConfig", "cluster_map", "label_map"]
+__all__ = ["MaskConfig", "class_agreement", "cluster_map", "label_map"]
 
 _HOME = {
     "MaskConfig": "dcseg.segment.config",
+    "class_agreement": "dcseg.segment.evidence",
     "cluster_map": "dcseg.segment.maps",
     "label_map": "dcseg.segment.maps",
 }

@@ -13,7 +13,10 @@ from dcseg.cli import main
 from dcseg.config import PipelineConfig, preset
 from dcseg.errors import InputError
 from dcseg.io.images import read_image
+from dcseg.io.run_output import load_run
 from dcseg.jobs import RunInputs, evaluate_job, resegment_job, run_job, train_job
+from dcseg.pipeline import Segmentation, segment_scene
+from dcseg.segment import class_agreement, label_map
 
 pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")
 
@@ -195,3 +198,36 @@ def test_cli_recluster_reclassify_evaluate(
     assert "naive_fusion" in json.loads(capsys.readouterr().out)
     with pytest.raises(SystemExit, match="--scale must be in"):
         main(["recluster", str(run_dir), "--scale", "2", "--out", str(tmp_path / "bad")])
+
+
+def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
+    saved = load_run(run_dir)
+    base = PipelineConfig.from_dict(saved.record["config"])
+    n_classes = len(saved.vocabulary)
+
+    def segment(share: float) -> Segmentation:
+        cfg = replace(base, assign=replace(base.assign, min_class_share=share))
+        return segment_scene(saved.trained, saved.semantic, n_classes, cfg)
+
+    plain, refined = segment(0.0), segment(0.9)
+    before, after = plain.semantic_ids, refined.semantic_ids
+    dropped = (before >= 0) & (after < 0)
+    assert dropped.any(), "a 0.9 share must drop some Gaussians on this scene"
+    # Gaussians only ever leave a cluster: nobody changes class or gains one.
+    assert np.array_equal(after[after >= 0], before[after >= 0])
+    # Clusters are compact 0..K-1 and the assignment's arrays follow them.
+    labels = refined.clustering.labels
+    k = refined.n_instances
+    assert np.array_equal(np.unique(labels[labels >= 0]), np.arange(k))
+    assert refined.assignment.labels.shape == (k,) and refined.assignment.votes.shape[0] == k
+    # Every Gaussian still labelled has at least the required share of its own evidence.
+    names = [v.name for v in saved.trained.views if v.name in saved.semantic]
+    views = [v for v in saved.trained.views if v.name in saved.semantic]
+    maps = [saved.semantic[n].classes for n in names]
+    agree, total = class_agreement([v.blend for v in views], maps, after)
+    kept = (after >= 0) & (total > 0)
+    assert np.all(agree[kept] >= 0.9 * total[kept])
+    # The cluster maps were rendered from the refined clusters.
+    for name, ids in refined.cluster_maps.items():
+        assert ids.max() < k
+        assert np.array_equal(refined.label_maps[name], label_map(ids, refined.assignment.labels))

@@ -1,0 +1,116 @@
+"""How much each Gaussian's own class-mask evidence agrees with its cluster's class.
+
+A Gaussian's evidence for class ``c`` in one view is its blending weight summed over the
+pixels the class-aware map labels ``c``: a sparse product over the view's frozen blending
+weights, like the cluster maps (:mod:`dcseg.segment.maps`). Only two numbers per Gaussian are
+kept — the evidence for the class of its cluster and for any class — so memory is O(N),
+whatever the vocabulary's size.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from dcseg.blend import BlendWeights
+
+
+def view_agreement(
+    blend: BlendWeights, class_map: NDArray[Any], gaussian_classes: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """One view's evidence per Gaussian: ``(agree [N], total [N])`` float64.
+
+    On the CPU a numba pass over the stored contributions
+    (:func:`dcseg.blend_kernels.add_class_agreement`), elsewhere :func:`agreement_torch`.
+
+    Args:
+        blend: the view's blending weights.
+        class_map: ``[H, W]`` int class per pixel, -1 = none.
+        gaussian_classes: ``[N]`` int64 class of every Gaussian's cluster, -1 = none, on the
+            blending weights' device.
+
+    Returns:
+        ``agree``: blending weight over pixels labelled with the Gaussian's own class;
+        ``total``: blending weight over pixels labelled with any class.
+    """
+    if np.shape(class_map) != (blend.height, blend.width):
+        raise ValueError(
+            f"class map {np.shape(class_map)} does not match the view's "
+            f"{(blend.height, blend.width)}"
+        )
+    classes = np.asarray(class_map, dtype=np.int64).reshape(-1)
+    if blend.ids.device.type != "cpu":
+        return agreement_torch(
+            blend, torch.as_tensor(classes, device=blend.ids.device), gaussian_classes
+        )
+    from dcseg.blend_kernels import add_class_agreement
+
+    n = gaussian_classes.shape[0]
+    agree, total = np.zeros(n), np.zeros(n)
+    add_class_agreement(
+        blend.offsets.numpy(),
+        blend.ids.numpy(),
+        blend.weights.detach().numpy(),
+        classes,
+        gaussian_classes.numpy(),
+        agree,
+        total,
+    )
+    return torch.from_numpy(agree), torch.from_numpy(total)
+
+
+def agreement_torch(
+    blend: BlendWeights, pixel_class: torch.Tensor, gaussian_classes: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`view_agreement` with tensor operations on any device (``pixel_class`` ``[H*W]``)."""
+    pixel_class = pixel_class[blend.rows()]
+    ids = blend.ids.long()
+    weights = blend.weights.double()
+    seen = pixel_class >= 0
+    own = seen & (pixel_class == gaussian_classes[ids])
+    n = gaussian_classes.shape[0]
+    return _sum_by(ids[own], weights[own], n), _sum_by(ids[seen], weights[seen], n)
+
+
+def _sum_by(ids: torch.Tensor, weights: torch.Tensor, n: int) -> torch.Tensor:
+    return torch.zeros(n, dtype=weights.dtype, device=weights.device).index_add_(0, ids, weights)
+
+
+def class_agreement(
+    blends: Sequence[BlendWeights],
+    class_maps: Sequence[NDArray[Any]],
+    gaussian_classes: NDArray[np.integer[Any]],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per Gaussian, class-mask evidence for its cluster's class and for any class, over views.
+
+    Args:
+        blends: per view, the blending weights.
+        class_maps: per view, ``[H, W]`` int class per pixel (-1 = none), same views in order.
+        gaussian_classes: ``[N]`` class of every Gaussian's cluster (-1 = none): the cluster
+            labels mapped through the assignment.
+
+    Returns:
+        ``agree [N]`` and ``total [N]`` float64, summed over views (see :func:`view_agreement`).
+
+    Example:
+        >>> agree, total = class_agreement(blends, maps, classes)  # doctest: +SKIP
+        >>> share = agree / np.maximum(total, 1e-12)
+    """
+    if len(blends) != len(class_maps):
+        raise ValueError(f"{len(blends)} blending-weight views but {len(class_maps)} class maps")
+    n = len(gaussian_classes)
+    agree, total = np.zeros(n), np.zeros(n)
+    for i, (blend, class_map) in enumerate(zip(blends, class_maps, strict=True)):
+        device = blend.ids.device
+        g = torch.as_tensor(np.asarray(gaussian_classes, dtype=np.int64), device=device)
+        try:
+            a, t = view_agreement(blend, class_map, g)
+        except ValueError as error:
+            raise ValueError(f"view {i}: {error}") from None
+        agree += a.cpu().numpy()
+        total += t.cpu().numpy()
+    return agree, total

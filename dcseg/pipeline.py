@@ -139,7 +139,7 @@ def segment_scene(
 ) -> Segmentation:
     """Cluster at ``cfg.scale``, render cluster maps, and label clusters from class masks.
 
-    With ``cfg.assign.min_class_share > 0``, Gaussians whose own class-mask evidence
+    With ``cfg.assign.min_share_ratio > 0``, Gaussians whose own class-mask evidence
     contradicts their cluster's class then leave it (:mod:`dcseg.assign.consistency`),
     clusters left empty are removed, and the cluster maps are rendered again; the votes stay
     those of the first maps.
@@ -156,7 +156,7 @@ def segment_scene(
         cfg.assign,
     )  # fmt: skip
     on_progress("assign", 1.0, f"{int((assignment.labels >= 0).sum())} of {k} clusters labelled")
-    if cfg.assign.min_class_share > 0 and labelled:
+    if cfg.assign.min_share_ratio > 0 and labelled:
         clustering, assignment = _drop_inconsistent(trained, semantic, clustering, assignment, cfg)
         maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, "refine")
     semantic_ids = label_map(clustering.labels, assignment.labels)
@@ -192,7 +192,8 @@ def _drop_inconsistent(
         [v.blend for v in views], [semantic[v.name].classes for v in views], classes
     )
     labels = clustering.labels.copy()
-    labels[inconsistent(classes, agree, total, cfg.assign.min_class_share)] = -1
+    drop = inconsistent(clustering.labels, classes, agree, total, cfg.assign.min_share_ratio)
+    labels[drop] = -1
     used = np.bincount(labels[labels >= 0], minlength=clustering.n_clusters) > 0
     labels, centers = compact_labels(labels, clustering.centers)
     a = assignment

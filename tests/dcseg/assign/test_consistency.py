@@ -1,4 +1,4 @@
-"""Gaussians contradicted by their own class evidence: the share test."""
+"""Gaussians contradicted by their own class evidence: the relative share test."""
 
 from __future__ import annotations
 
@@ -9,29 +9,49 @@ from dcseg.assign.config import AssignConfig
 from dcseg.assign.consistency import inconsistent
 
 
-def test_low_share_of_the_cluster_class_is_inconsistent() -> None:
+def test_far_below_the_cluster_share_is_inconsistent() -> None:
+    labels = np.array([0, 0, 0, 0])
     classes = np.array([2, 2, 2, 2])
-    agree = np.array([0.5, 0.14, 0.15, 0.0])
+    agree = np.array([0.9, 0.9, 0.3, 0.2])
     total = np.ones(4)
-    assert inconsistent(classes, agree, total, 0.15).tolist() == [False, True, False, True]
+    # Cluster share = 2.3 / 4 = 0.575; half of it is 0.2875.
+    assert inconsistent(labels, classes, agree, total, 0.5).tolist() == [False, False, False, True]
 
 
-def test_unlabelled_and_unseen_gaussians_stay() -> None:
-    classes = np.array([-1, 0, 1])
-    agree = np.zeros(3)
-    total = np.array([5.0, 0.0, 2.0])
-    # -1: no class to contradict; zero total: no evidence; only the last is contradicted.
-    assert inconsistent(classes, agree, total, 0.15).tolist() == [False, False, True]
+def test_rare_class_cluster_keeps_its_uniformly_weak_gaussians() -> None:
+    # A class the maps miss in most views: every Gaussian has a small share, none is an outlier.
+    labels = np.array([0, 0, 0, 1, 1])
+    classes = np.array([5, 5, 5, 1, 1])
+    agree = np.array([0.1, 0.12, 0.09, 0.9, 0.05])
+    total = np.ones(5)
+    assert inconsistent(labels, classes, agree, total, 0.5).tolist() == [
+        False,
+        False,
+        False,
+        False,
+        True,
+    ]
 
 
-def test_share_zero_keeps_everything() -> None:
-    assert not inconsistent(np.array([0, 1]), np.zeros(2), np.ones(2), 0.0).any()
+def test_noise_unlabelled_and_unseen_gaussians_stay() -> None:
+    labels = np.array([-1, 0, 1, 1])
+    classes = np.array([-1, -1, 3, 3])
+    agree = np.array([0.0, 0.0, 0.0, 4.0])
+    total = np.array([5.0, 5.0, 0.0, 4.0])
+    # Noise, an unlabelled cluster and a Gaussian without evidence are never inconsistent.
+    assert not inconsistent(labels, classes, agree, total, 1.0).any()
 
 
-def test_exception_bad_share_and_shapes() -> None:
-    with pytest.raises(ValueError, match="min_share must be in"):
-        inconsistent(np.zeros(2, dtype=np.int64), np.zeros(2), np.ones(2), 1.5)
-    with pytest.raises(ValueError, match=r"classes \(3,\), agree \(2,\)"):
-        inconsistent(np.zeros(3, dtype=np.int64), np.zeros(2), np.ones(2), 0.1)
-    with pytest.raises(ValueError, match="min_class_share must be in"):
-        AssignConfig(min_class_share=-0.1)
+def test_ratio_zero_keeps_everything() -> None:
+    labels = np.array([0, 0])
+    assert not inconsistent(labels, labels, np.array([0.0, 1.0]), np.ones(2), 0.0).any()
+
+
+def test_exception_bad_ratio_and_shapes() -> None:
+    labels = np.zeros(2, dtype=np.int64)
+    with pytest.raises(ValueError, match="min_ratio must be in"):
+        inconsistent(labels, labels, np.zeros(2), np.ones(2), 1.5)
+    with pytest.raises(ValueError, match=r"cluster_labels \(2,\), classes \(2,\), agree \(3,\)"):
+        inconsistent(labels, labels, np.zeros(3), np.ones(2), 0.1)
+    with pytest.raises(ValueError, match="min_share_ratio must be in"):
+        AssignConfig(min_share_ratio=-0.1)

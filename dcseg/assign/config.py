@@ -30,12 +30,12 @@ class AssignConfig:
             (:mod:`dcseg.assign.consistency`); 0 = off (the paper). dcseg's addition: on the
             40-view synthetic benchmark scenes, object clusters also held floor Gaussians up to
             half a metre away, labelling floor as ball, block or domino. Projection mIoU, mean
-            over three reconstructions (pipeline seeds 0/1/2) x clustering seeds 0/10 at heavy
-            noise, one reconstruction x seeds 0/10 at clean and default noise, for off / 0.5 /
-            0.6 / an absolute share floor of 0.15 instead: heavy 65.9 / 73.2 / 73.3 / 72.9,
-            default 86.2 / 87.9 / 88.0 / 87.5, clean 89.0 / 89.1 / 89.7 / 89.1. The absolute
-            floor also erased a rare class (the maps miss it in most views) that the relative
-            test keeps; 0.7 started to erase it too.
+            over three reconstructions (pipeline seeds 0/1/2) x clustering seeds 0/10
+            (``benchmarks/bench_robustness.py``), clean / default / heavy noise, off vs 0.5 vs
+            0.6: 87.6 / 81.7 / 69.3 vs 88.0 / 86.0 / 78.1 vs 88.5 / 86.7 / 78.0. An absolute
+            share floor instead (0.15; measured with the older 2D filter) erased a rare class
+            that the maps miss in most views, which the relative test keeps; 0.7 started to
+            erase it too, so the default stays clear of that edge.
     """
 
     mode: AssignMode = "assignment"

@@ -54,5 +54,5 @@ def test_min_area_scales_with_image() -> None:
     paper = MaskConfig(min_area_fraction=PAPER_MIN_AREA_FRACTION)
     assert paper.min_area(1200, 680) == 1000
     assert paper.min_area(320, 240) == 94
-    assert MaskConfig().min_area(1200, 680) == 245
-    assert MaskConfig().min_area(320, 240) == 23
+    assert MaskConfig().min_area(1200, 680) == 82
+    assert MaskConfig().min_area(320, 240) == 8

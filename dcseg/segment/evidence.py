@@ -102,13 +102,12 @@ def class_agreement(
     """
     if len(blends) != len(class_maps):
         raise ValueError(f"{len(blends)} blending-weight views but {len(class_maps)} class maps")
-    n = len(gaussian_classes)
+    classes = torch.from_numpy(np.asarray(gaussian_classes, dtype=np.int64))
+    n = len(classes)
     agree, total = np.zeros(n), np.zeros(n)
     for i, (blend, class_map) in enumerate(zip(blends, class_maps, strict=True)):
-        device = blend.ids.device
-        g = torch.as_tensor(np.asarray(gaussian_classes, dtype=np.int64), device=device)
         try:
-            a, t = view_agreement(blend, class_map, g)
+            a, t = view_agreement(blend, class_map, classes.to(blend.ids.device))
         except ValueError as error:
             raise ValueError(f"view {i}: {error}") from None
         agree += a.cpu().numpy()

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dcseg import __version__
 from dcseg.config import CaptureOptions, PipelineConfig
@@ -50,6 +50,9 @@ from dcseg.pipeline import (
 )
 from dcseg.render import select_backend
 from dcseg.types import Capture, GroundTruth, Vocabulary
+
+if TYPE_CHECKING:
+    import torch
 
 
 @dataclass(frozen=True)
@@ -115,9 +118,17 @@ def _quiet(stage: str, fraction: float, message: str) -> None:
 
 
 def run_job(
-    inputs: RunInputs, cfg: PipelineConfig, out: Path, on_progress: Progress = _quiet
+    inputs: RunInputs,
+    cfg: PipelineConfig,
+    out: Path,
+    on_progress: Progress = _quiet,
+    *,
+    device: str = "auto",
 ) -> dict[str, Any]:
     """Reconstruct (unless a scene is given), train, segment, evaluate and publish ``out``.
+
+    ``device`` (:func:`dcseg.devices.resolve_device`) is where reconstruction, the cache's
+    projection and affinity training run; clustering and classification run on the host.
 
     Returns:
         The ``run.json`` record.
@@ -129,13 +140,18 @@ def run_job(
         semantic = read_semantic_maps(inputs.semantic_masks, vocabulary, size=_frame_size(capture))
         gt = _read_gt(inputs.ground_truth, vocabulary)
     _check_subset(semantic, set(capture.names), "class-aware masks")
-    trained = _train(inputs, capture, cfg, clock, on_progress)
+    trained = _train(inputs, capture, cfg, clock, on_progress, device)
     saved = replace(trained, semantic=dict(semantic), vocabulary=vocabulary)
     return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True)
 
 
 def train_job(
-    inputs: RunInputs, cfg: PipelineConfig, out: Path, on_progress: Progress = _quiet
+    inputs: RunInputs,
+    cfg: PipelineConfig,
+    out: Path,
+    on_progress: Progress = _quiet,
+    *,
+    device: str = "auto",
 ) -> dict[str, Any]:
     """Reconstruct (unless a scene is given) and train features only.
 
@@ -145,7 +161,7 @@ def train_job(
     clock = _Clock()
     with clock.phase("read"):
         capture = read_capture(inputs.capture, inputs.capture_options)
-    saved = _train(inputs, capture, cfg, clock, on_progress)
+    saved = _train(inputs, capture, cfg, clock, on_progress, device)
     tmp = staging_dir(out)
     try:
         save_state(tmp, saved.trained, {}, None, saved.previews)
@@ -159,17 +175,28 @@ def train_job(
 
 
 def _train(
-    inputs: RunInputs, capture: Capture, cfg: PipelineConfig, clock: _Clock, on_progress: Progress
+    inputs: RunInputs,
+    capture: Capture,
+    cfg: PipelineConfig,
+    clock: _Clock,
+    on_progress: Progress,
+    device: str,
 ) -> SavedRun:
     """Read the class-agnostic masks, reconstruct and train: a run without class masks yet."""
+    from dcseg.devices import resolve_device
+
+    try:
+        where = resolve_device(device)
+    except ValueError as error:
+        raise InputError.single("device", str(error)) from None
     with clock.phase("read"):
         agnostic = read_agnostic_masks(inputs.agnostic_masks, size=_frame_size(capture))
     _check_subset(agnostic, set(capture.names), "class-agnostic masks")
     if not any(len(m) for m in agnostic.values()):
         raise InputError.single("class-agnostic masks", "no frame has any mask")
-    reconstruction: dict[str, Any] = {}
+    reconstruction: dict[str, Any] = {"device": str(where)}
     with clock.phase("reconstruct"):
-        gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction)
+        gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction, where)
     with clock.phase("train"):
         trained = train_scene(gaussians, capture, agnostic, cfg, on_progress)
     picked = [capture.frames[i] for i in preview_indices(len(capture))]
@@ -338,16 +365,17 @@ def _scene(
     cfg: PipelineConfig,
     on_progress: Progress,
     summary: dict[str, Any],
+    device: torch.device,
 ) -> Gaussians:
     if inputs.scene is not None:
         summary["scene"] = str(inputs.scene)
-        return read_gaussians_ply(inputs.scene)
+        return read_gaussians_ply(inputs.scene).to(device)
     from dcseg.reconstruct import fit_gaussians
 
     def report(step: int, total: int, loss: float) -> None:
         on_progress("reconstruct", step / total, f"step {step}/{total} loss {loss:.4f}")
 
-    result = fit_gaussians(capture, cfg.reconstruct, on_progress=report)
+    result = fit_gaussians(capture, cfg.reconstruct, device=device, on_progress=report)
     summary.update(
         {
             "psnr": result.metrics.psnr,

@@ -5,63 +5,12 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from dcseg.config import DEFAULT_SCALE
+from dcseg.options import JobOptions, PresetName
 
 JobStatus = Literal["queued", "running", "succeeded", "failed", "canceling", "canceled"]
 """Job statuses; clients must tolerate values added later."""
-
-
-class CaptureOptionsIn(BaseModel):
-    """How the capture is read: the fields of ``dcseg.config.CaptureOptions``, which the worker
-    builds from them (not imported here, so the API never depends on dcseg's stage configs)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    stride: int = Field(default=1, ge=1, description="keep every stride-th frame")
-    max_frames: int | None = Field(default=None, ge=1, description="keep at most this many")
-    size: tuple[PositiveInt, PositiveInt] | None = Field(
-        default=None, description="downscale frames to (width, height)"
-    )
-    depth_trunc: float | None = Field(default=None, gt=0, description="ignore depth beyond (m)")
-    intrinsics: tuple[float, float, float, float] | None = Field(
-        default=None, description="(fx, fy, cx, cy) for layouts that store none"
-    )
-
-
-class SegmentOptionsIn(BaseModel):
-    """Segmentation parameters (the library's ``PipelineConfig`` fields a job may set)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    scale: float = Field(
-        default=DEFAULT_SCALE, ge=0.0, le=1.0, description="clustering scale in [0, 1]"
-    )
-    matcher: Literal["assignment", "matching"] = Field(
-        default="assignment", description="class replication (assignment) or one-to-one"
-    )
-    seed: int = Field(default=0, ge=0, description="seed of every random choice")
-
-
-class JobOptions(BaseModel):
-    """Method parameters of one job (stored with it as ``config``)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    capture: CaptureOptionsIn = Field(default_factory=CaptureOptionsIn)
-    """How the capture is read (frame stride, size, depth truncation, intrinsics)."""
-
-    reconstruct: dict[str, Any] = Field(default_factory=dict)
-    """Overrides of the reconstruction preset (fields of ``ReconstructConfig``, e.g.
-    ``{"iterations": 500}``); unknown fields fail the job with a message naming them."""
-
-    affinity: dict[str, Any] = Field(default_factory=dict)
-    """Overrides of the affinity-training preset (fields of ``AffinityConfig``, e.g.
-    ``{"iterations": 500}``); unknown fields fail the job with a message naming them."""
-
-    segment: SegmentOptionsIn = Field(default_factory=SegmentOptionsIn)
-    """Clustering scale, matcher and seed of the segmentation stages."""
 
 
 class JobCreate(BaseModel):
@@ -69,6 +18,7 @@ class JobCreate(BaseModel):
 
     model_config = ConfigDict(
         extra="forbid",
+        allow_inf_nan=False,
         json_schema_extra={
             "anyOf": [
                 {"required": [name], "properties": {name: {"type": "string"}}}
@@ -84,10 +34,12 @@ class JobCreate(BaseModel):
     """A succeeded job whose finished stages are reused when their parameters are unchanged;
     its upload is used when ``upload_id`` is omitted."""
 
-    preset: str = Field(default="fast", pattern=r"^[a-z][a-z0-9_-]{0,31}$")
+    preset: PresetName = "fast"
     """Named parameter set (``fast``, ``paper``); ``options`` override single fields."""
 
     options: JobOptions = Field(default_factory=JobOptions)
+    """Method parameters, each bounded (``dcseg.options``); the same builder as the CLI and the
+    worker checks them, so a job the API accepts never fails on its options later."""
 
     @model_validator(mode="after")
     def _has_input(self) -> JobCreate:

@@ -12,7 +12,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-from dcseg.config import DEFAULT_SCALE
 from worker.contract import input_layout
 from worker.execute import Stage, StageContext, StageOutcome
 
@@ -21,17 +20,13 @@ def _write_json(path: Path, data: Any) -> None:
     path.write_text(json.dumps(data, indent=2, sort_keys=True, default=str), encoding="utf-8")
 
 
-def capture_options(config: dict[str, Any]) -> Any:
-    """``dcseg.config.CaptureOptions`` from a job's stored options (JSON lists become tuples)."""
-    from dcseg.config import CaptureOptions
-    from dcseg.errors import InputError, Problem
+def job_configs(config: dict[str, Any]) -> tuple[Any, Any]:
+    """The job's ``(PipelineConfig, CaptureOptions)`` from its stored preset and options, built
+    by the one config builder the CLI and the API use (:func:`dcseg.options.build_config`);
+    InputError names a bad field."""
+    from dcseg.options import from_stored
 
-    raw = config.get("options", {}).get("capture", {})
-    values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()}
-    try:
-        return CaptureOptions(**values)
-    except (TypeError, ValueError) as error:
-        raise InputError([Problem("options.capture", str(error))]) from None
+    return from_stored(config)
 
 
 class ValidateStage:
@@ -51,7 +46,7 @@ class ValidateStage:
 
         ctx.progress(0.0, "validate: reading inputs")
         paths = InputPaths(**input_layout(ctx.input_root))
-        report = validate_inputs(paths, capture_options(ctx.config))
+        report = validate_inputs(paths, job_configs(ctx.config)[1])
         if report.problems:
             raise InputError(report.problems)
         _write_json(out / "report.json", report.summary)
@@ -81,11 +76,13 @@ class ReconstructStage:
             return StageOutcome("skipped", f"reconstruct: not available ({error})")
         if not hasattr(reconstruct, "fit_gaussians"):
             return StageOutcome("skipped", "reconstruct: dcseg.reconstruct has no fit_gaussians")
+        from dcseg.devices import resolve_device
         from dcseg.io.captures import read_capture
         from dcseg.io.ply import write_gaussians_ply
 
-        cfg = reconstruct_config(ctx.config)
-        capture = read_capture(ctx.input_root, capture_options(ctx.config))
+        pipeline, options = job_configs(ctx.config)
+        cfg = pipeline.reconstruct
+        capture = read_capture(ctx.input_root, options)
 
         def on_progress(iteration: int, total: int, loss: float) -> None:
             message = f"reconstruct: step {iteration}/{total}, loss {loss:.4f}"
@@ -113,48 +110,6 @@ class ReconstructStage:
 
 def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
-
-
-def reconstruct_config(config: dict[str, Any]) -> Any:
-    """The preset named by the job, with its overrides; InputError naming a bad field."""
-    from dcseg.reconstruct import PRESETS
-
-    return _overridden(PRESETS, config, "reconstruct", "reconstruction")
-
-
-def affinity_config(config: dict[str, Any]) -> Any:
-    """The job's affinity-training config: its preset with ``options.affinity`` overrides."""
-    from dcseg.affinity.config import PRESETS
-
-    return _overridden(PRESETS, config, "affinity", "affinity-training")
-
-
-def _overridden(presets: dict[str, Any], config: dict[str, Any], key: str, what: str) -> Any:
-    from dcseg.errors import InputError, Problem
-
-    preset = str(config.get("preset", "fast"))
-    if preset not in presets:
-        known = ", ".join(sorted(presets))
-        raise InputError([Problem("preset", f"unknown preset {preset!r} (known: {known})")])
-    overrides = dict(config.get("options", {}).get(key, {}))
-    fields = {f.name for f in dataclasses.fields(presets[preset])}
-    unknown = sorted(set(overrides) - fields)
-    if unknown:
-        reason = f"not a {what} parameter"
-        raise InputError([Problem(f"options.{key}.{name}", reason) for name in unknown])
-    try:
-        return dataclasses.replace(presets[preset], **overrides)
-    except (TypeError, ValueError) as error:
-        raise InputError([Problem(f"options.{key}", str(error))]) from None
-
-
-def resolve_device(device: str) -> str:
-    """``auto`` = CUDA when available; imported here so CUDA starts in the worker process only."""
-    if device != "auto":
-        return device
-    import torch
-
-    return "cuda" if torch.cuda.is_available() else "cpu"
 
 
 TRAIN_WEIGHTS = {"cache": 0.1, "affinity": 0.9}
@@ -191,14 +146,13 @@ class TrainStage:
 
         assert ctx.output_root is not None
         scene = ctx.output_root / "reconstruct" / "scene.ply"
+        cfg, options = job_configs(ctx.config)
         try:
-            inputs = RunInputs.from_bundle(
-                ctx.input_root, scene=scene, capture_options=capture_options(ctx.config)
-            )
+            inputs = RunInputs.from_bundle(ctx.input_root, scene=scene, capture_options=options)
         except InputError as error:  # a capture-only upload: reconstruct, nothing more
             return StageOutcome("skipped", f"train: {error.problems[0].reason}")
         progress = _weighted_progress(ctx, TRAIN_WEIGHTS)
-        record = train_job(inputs, pipeline_config(ctx.config), out, progress)
+        record = train_job(inputs, cfg, out, progress, device=ctx.settings.device)
         return StageOutcome("done", f"train: {record['seconds'].get('train', 0):.0f} s")
 
 
@@ -223,12 +177,12 @@ class SegmentStage:
         if not (trained / "run.json").is_file():
             return StageOutcome("skipped", "segment: nothing was trained (no masks uploaded)")
         layout = input_layout(ctx.input_root)
-        options = ctx.config.get("options", {}).get("segment", {})
+        cfg, _ = job_configs(ctx.config)
         record = resegment_job(
             trained,
             out,
-            scale=float(options.get("scale", DEFAULT_SCALE)),
-            matcher=str(options.get("matcher", "assignment")),
+            scale=cfg.scale,
+            matcher=cfg.assign.mode,
             semantic_masks=layout["semantic_masks"],
             vocabulary=layout["vocabulary"],
             ground_truth=layout["ground_truth"],
@@ -249,20 +203,6 @@ def _weighted_progress(ctx: StageContext, weights: dict[str, float]) -> Any:
         ctx.progress(done + weights[stage] * fraction, f"{stage}: {message}")
 
     return report
-
-
-def pipeline_config(config: dict[str, Any]) -> Any:
-    """The job's ``dcseg.config.PipelineConfig``: its preset, seed, scale and matcher."""
-    from dcseg.config import preset
-
-    options = config.get("options", {}).get("segment", {})
-    base = preset(str(config.get("preset", "fast")))
-    cfg = dataclasses.replace(
-        base, reconstruct=reconstruct_config(config), affinity=affinity_config(config)
-    )
-    cfg = cfg.seeded(int(options.get("seed", 0)))
-    assign = dataclasses.replace(cfg.assign, mode=options.get("matcher", "assignment"))
-    return dataclasses.replace(cfg, scale=float(options.get("scale", DEFAULT_SCALE)), assign=assign)
 
 
 def default_stages() -> list[Stage]:

@@ -75,7 +75,7 @@ def train_affinity(
         >>> result = train_affinity(gaussians, views, PRESETS["fast"])  # doctest: +SKIP
         >>> h = gated_features(result, 0.8)  # [N, D] unit vectors to cluster
     """
-    prepared = _prepare_views(views, cfg, gaussians.device)
+    prepared = _prepare_views(views, cfg)
     all_scales = np.concatenate([p.packed.scales for p in prepared])
     quantiles = fit_quantiles(all_scales, cfg.n_quantiles)
     trainer = _Trainer.create(gaussians, cfg, quantiles, float(all_scales.max()))
@@ -136,8 +136,9 @@ class _Trainer:
             view.packed, self.upper, cfg.rays, cfg.random_scales, cfg.max_pair_weight, self.rng
         )
         slots = sample_slots(self.knn.shape[1], cfg.knn_sample, self.rng)
-        pixels = _blend_pixels(batch.pixels, view.packed, view.blend)
-        rendered = self.render(view.blend, pixels, slots)
+        blend = _blend_on(view.blend, device)  # one view at a time: the cache stays on the host
+        pixels = _blend_pixels(batch.pixels, view.packed, blend)
+        rendered = self.render(blend, pixels, slots)
         q = torch.from_numpy(quantile_transform(batch.scales, self.quantiles))
         loss = contrastive_loss(
             rendered,
@@ -172,9 +173,7 @@ class _Trainer:
         )
 
 
-def _prepare_views(
-    views: Sequence[AffinityView], cfg: AffinityConfig, device: torch.device
-) -> list[_PreparedView]:
+def _prepare_views(views: Sequence[AffinityView], cfg: AffinityConfig) -> list[_PreparedView]:
     out: list[_PreparedView] = []
     for view in views:
         if view.masks is None or len(view.masks) == 0:
@@ -184,7 +183,7 @@ def _prepare_views(
         if packed is None:
             logger.warning("affinity: no mask of view %s has a usable 3D scale", view.name)
             continue
-        out.append(_PreparedView(view.name, _blend_on(view.blend, device), packed))
+        out.append(_PreparedView(view.name, view.blend, packed))
     if not out:
         raise ValueError("no view has masks with a usable 3D scale (valid depth under the masks)")
     return out

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
-from dcseg.config import CaptureOptions
+from dcseg.config import CaptureOptions, PipelineConfig
+from dcseg.errors import InputError
+from dcseg.options import build_config, parse_options
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -43,15 +46,48 @@ def add_capture_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def capture_options(args: argparse.Namespace) -> CaptureOptions:
-    """Build :class:`CaptureOptions` from the options added by :func:`add_capture_options`."""
+FLAGS = {
+    "capture.stride": "--stride",
+    "capture.max_frames": "--max-frames",
+    "capture.size": "--size",
+    "capture.depth_trunc": "--depth-trunc",
+    "capture.intrinsics": "--intrinsics",
+    "segment.scale": "--scale",
+    "segment.matcher": "--matcher",
+    "segment.seed": "--seed",
+}
+"""The flag of each job option the CLI sets (named in error messages)."""
+
+
+def capture_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``capture`` job options of the flags added by :func:`add_capture_options`."""
+    return {
+        "stride": args.stride,
+        "max_frames": args.max_frames,
+        "size": args.size,
+        "depth_trunc": args.depth_trunc,
+        "intrinsics": args.intrinsics,
+    }
+
+
+def build(preset: str, options: dict[str, Any]) -> tuple[PipelineConfig, CaptureOptions]:
+    """The configs of ``options`` through the one builder the API and the worker use
+    (:func:`dcseg.options.build_config`); exits naming the flag of a refused value."""
     try:
-        return CaptureOptions(
-            stride=args.stride,
-            max_frames=args.max_frames,
-            size=args.size,
-            depth_trunc=args.depth_trunc,
-            intrinsics=args.intrinsics,
-        )
-    except ValueError as error:
-        raise SystemExit(f"dcseg: {error}") from None
+        return build_config(preset, parse_options(options))
+    except InputError as error:
+        lines = [f"{_flag(p.path)}: {p.reason}" for p in error.problems]
+        raise SystemExit("dcseg: " + "; ".join(lines)) from None
+
+
+def _flag(path: str) -> str:
+    field = path.removeprefix("options.")
+    for name, flag in FLAGS.items():
+        if field == name or field.startswith(name + "."):
+            return f"{flag} ({path})"
+    return path
+
+
+def capture_options(args: argparse.Namespace) -> CaptureOptions:
+    """:class:`CaptureOptions` from the flags added by :func:`add_capture_options`."""
+    return build("fast", {"capture": capture_fields(args)})[1]

@@ -6,10 +6,10 @@ import argparse
 import logging
 import sys
 from collections.abc import Callable
-from dataclasses import replace
 from typing import Any
 
-from dcseg.config import DEFAULT_SCALE, PipelineConfig, preset
+from dcseg.cli._options import build, capture_fields
+from dcseg.config import DEFAULT_SCALE, CaptureOptions, PipelineConfig
 
 log = logging.getLogger("dcseg")
 
@@ -27,7 +27,17 @@ def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
         "--scale", type=float, default=DEFAULT_SCALE, help="clustering scale in [0, 1]"
     )
     group.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    add_device_option(group)
     add_output_options(parser)
+
+
+def add_device_option(parser: Any) -> None:
+    """``--device auto|cpu|cuda|cuda:N``: where reconstruction and training compute."""
+    parser.add_argument(
+        "--device",
+        default="auto",
+        help="auto (CUDA when present), cpu, cuda or cuda:N (auto)",
+    )
 
 
 def add_output_options(parser: argparse.ArgumentParser) -> None:
@@ -35,12 +45,10 @@ def add_output_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
-    cfg = preset(args.preset).seeded(args.seed)
-    try:
-        return replace(cfg, scale=args.scale, assign=replace(cfg.assign, mode=args.matcher))
-    except ValueError as error:
-        raise SystemExit(f"dcseg: {error}") from None
+def job_config(args: argparse.Namespace) -> tuple[PipelineConfig, CaptureOptions]:
+    """The configs of ``--preset --scale --matcher --seed`` and the capture flags."""
+    segment = {"scale": args.scale, "matcher": args.matcher, "seed": args.seed}
+    return build(args.preset, {"capture": capture_fields(args), "segment": segment})
 
 
 def run_reporting(job: Job, args: argparse.Namespace) -> int:

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from dcseg.cli._options import parse_size
+from dcseg.cli._pipeline import add_device_option
 
 log = logging.getLogger("dcseg")
 
@@ -31,12 +32,13 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--seed", type=int, default=0, help="scene and method seed (0)")
     parser.add_argument("--preset", choices=("fast", "paper"), default="fast", help="(fast)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_device_option(parser)
     parser.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from dcseg.cli._options import build
     from dcseg.cli._progress import StageBars
-    from dcseg.config import preset
     from dcseg.jobs import RunInputs, run_job
     from dcseg.synth import SynthConfig, generate_scene, write_scene
 
@@ -49,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     write_scene(generate_scene(synth), scene_dir)
     inputs = RunInputs.from_bundle(scene_dir)
     with StageBars(enabled=not args.quiet) as bars:
-        record = run_job(inputs, preset(args.preset).seeded(args.seed), run_dir, bars)
+        cfg, _ = build(args.preset, {"segment": {"seed": args.seed}})
+        record = run_job(inputs, cfg, run_dir, bars, device=args.device)
     sys.stdout.write(json.dumps({"out": str(run_dir), **_summary(record)}, indent=1) + "\n")
     return 0
 

@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from dcseg import __version__
-from dcseg.cli._options import add_capture_options, capture_options
+from dcseg.cli._options import add_capture_options, build, capture_fields
+from dcseg.cli._pipeline import add_device_option
 
 log = logging.getLogger(__name__)
 
@@ -40,28 +41,27 @@ def register(subparsers: Any) -> None:
         "--full-res-from", type=int, help="train at full resolution from this step on"
     )
     parser.add_argument("--backend", help="renderer backend (default: the renderer's choice)")
-    parser.add_argument("--device", help="torch device (default: cuda if available, else cpu)")
+    add_device_option(parser)
     add_capture_options(parser)
     parser.set_defaults(run=run)
 
 
-def _config(args: argparse.Namespace) -> Any:
-    from dcseg.reconstruct.config import PRESETS
-
+def _config(args: argparse.Namespace) -> tuple[Any, Any]:
+    """``(ReconstructConfig, CaptureOptions)`` through the one config builder."""
     overrides = {
         "iterations": args.iterations,
         "holdout": args.holdout,
-        "seed": args.seed,
         "sh_degree": args.sh_degree,
         "train_downscale": args.train_downscale,
         "full_res_from": args.full_res_from,
         "backend": args.backend,
     }
     chosen = {key: value for key, value in overrides.items() if value is not None}
-    try:
-        return replace(PRESETS[args.preset], **chosen)
-    except ValueError as error:
-        raise SystemExit(f"dcseg reconstruct: {error}") from None
+    options = {"reconstruct": chosen, "capture": capture_fields(args)}
+    if args.seed is not None:
+        options["segment"] = {"seed": args.seed}
+    cfg, capture = build(args.preset, options)
+    return cfg.reconstruct, capture
 
 
 def _progress_bar(total: int) -> tuple[Any, Any]:
@@ -123,17 +123,16 @@ def _report(result: Any, cfg: Any, seconds: dict[str, float], backend: str) -> d
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-
+    from dcseg.devices import resolve_device
     from dcseg.errors import InputError
     from dcseg.io.captures import read_capture
     from dcseg.io.ply import write_gaussians_ply
     from dcseg.reconstruct import fit_gaussians
     from dcseg.render import select_backend
 
-    cfg = _config(args)
-    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    cfg, options = _config(args)
     try:
+        device = resolve_device(args.device)
         backend = select_backend(device, cfg.backend)
     except ValueError as error:
         sys.stderr.write(f"dcseg reconstruct: {error}\n")
@@ -141,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     seconds: dict[str, float] = {}
     start = time.perf_counter()
     try:
-        capture = read_capture(args.capture, capture_options(args))
+        capture = read_capture(args.capture, options)
     except InputError as error:
         for problem in error.problems:
             sys.stderr.write(f"dcseg reconstruct: {problem}\n")

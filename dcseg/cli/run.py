@@ -7,8 +7,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from dcseg.cli._options import add_capture_options, capture_options
-from dcseg.cli._pipeline import add_pipeline_options, pipeline_config, run_reporting
+from dcseg.cli._options import add_capture_options
+from dcseg.cli._pipeline import add_pipeline_options, job_config, run_reporting
 
 
 def register(subparsers: Any) -> None:
@@ -33,6 +33,7 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from dcseg.jobs import RunInputs, run_job
 
+    cfg, options = job_config(args)
     inputs = RunInputs(
         capture=args.capture,
         agnostic_masks=args.agnostic_masks,
@@ -40,10 +41,11 @@ def run(args: argparse.Namespace) -> int:
         vocabulary=args.vocabulary,
         ground_truth=args.gt,
         scene=args.scene,
-        capture_options=capture_options(args),
+        capture_options=options,
     )
-    cfg = pipeline_config(args)
-    return run_reporting(lambda progress: run_job(inputs, cfg, args.out, progress), args)
+    return run_reporting(
+        lambda progress: run_job(inputs, cfg, args.out, progress, device=args.device), args
+    )
 
 
 def summary_line(record: dict[str, Any]) -> str:

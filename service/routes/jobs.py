@@ -10,6 +10,8 @@ from fastapi import APIRouter, Header, Query, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
+from dcseg.errors import InputError
+from dcseg.options import build_config, check_size
 from service.deps import AppState, StateDep, TenantDep
 from service.jobs import (
     decode_page_token,
@@ -65,8 +67,10 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
             )
         upload_id = upload_id or parent.upload_id
     assert upload_id is not None
-    if state.store.get_upload(upload_id, tenant) is None:
+    upload = state.store.get_upload(upload_id, tenant)
+    if upload is None:
         raise ApiProblem(404, f"no upload {upload_id!r}", slug="not-found")
+    check_options(body, upload.summary)
     active = state.store.count_active(tenant)
     if active >= state.settings.max_running_jobs_per_tenant:
         raise ApiProblem(
@@ -75,7 +79,7 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
             slug="too-many-jobs",
             headers={"Retry-After": "30"},
         )
-    config = {"preset": body.preset, "options": body.options.model_dump(mode="json")}
+    config = {"preset": body.preset, "options": body.options.stored()}
     job = Job(
         id=new_id(),
         tenant_id=tenant,
@@ -87,6 +91,31 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
         message="queued",
     )
     return state.store.create_job(job)
+
+
+def check_options(body: JobCreate, summary: dict[str, Any]) -> None:
+    """422 naming the field when the options are refused by the config builder the worker
+    uses (cross-field rules) or would upscale the upload's frames."""
+    try:
+        build_config(body.preset, body.options)
+        check_size(body.options, native_size(summary), "options.capture.size")
+    except InputError as error:
+        items = [{"path": p.path, "reason": p.reason} for p in error.problems]
+        detail = f"{len(items)} invalid field(s): " + "; ".join(str(p) for p in error.problems)
+        raise ApiProblem(
+            422, detail, slug="validation-error", title="Request validation failed", errors=items
+        ) from None
+
+
+def native_size(summary: dict[str, Any]) -> tuple[int, int] | None:
+    """The smallest frame size an upload's validation summary reports (``"WxH"`` strings)."""
+    sizes = [
+        tuple(int(v) for v in str(s).split("x"))
+        for s in summary.get("capture", {}).get("resolution", [])
+    ]
+    if not sizes:
+        return None
+    return min(w for w, _ in sizes), min(h for _, h in sizes)
 
 
 def _submit(state: AppState, tenant: str, body: JobCreate) -> JSONResponse:

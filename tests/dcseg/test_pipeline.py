@@ -236,3 +236,34 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
     for name, ids in refined.cluster_maps.items():
         assert ids.max() < k
         assert np.array_equal(refined.label_maps[name], label_map(ids, refined.assignment.labels))
+
+
+def test_device_is_recorded_and_a_missing_gpu_is_named(run_dir: Path, scene: Path, tmp_path):
+    """``device="auto"`` (the default) ran on the CPU here and says so in ``run.json``; asking
+    for CUDA where torch sees none is an input error naming the device, before any work."""
+    import torch
+
+    record = json.loads((run_dir / "run.json").read_text())
+    expected = "cuda" if torch.cuda.is_available() else "cpu"
+    assert record["reconstruction"]["device"].startswith(expected)
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: a missing-GPU error cannot be provoked")
+    with pytest.raises(InputError, match="device 'cuda' asked for, but torch sees no CUDA"):
+        run_job(inputs_of(scene), tiny_config(), tmp_path / "gpu", device="cuda")
+    with pytest.raises(InputError, match="unknown device 'tpu'"):
+        run_job(inputs_of(scene), tiny_config(), tmp_path / "tpu", device="tpu")
+    assert not (tmp_path / "gpu").exists() and not (tmp_path / "tpu").exists()
+
+
+@pytest.mark.gpu
+def test_whole_pipeline_on_cuda(scene: Path, tmp_path: Path) -> None:
+    """Reconstruction, the cache's projection and affinity training on CUDA; segmentation,
+    exports and re-clustering work from the GPU-trained state."""
+    out = tmp_path / "cuda"
+    record = run_job(inputs_of(scene), tiny_config(), out, device="cuda")
+    assert record["reconstruction"]["device"].startswith("cuda")
+    assert record["counts"]["clusters"] >= 2
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    again = resegment_job(out, tmp_path / "again", scale=0.5)
+    assert again["counts"]["clusters"] >= 1

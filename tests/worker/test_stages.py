@@ -13,7 +13,7 @@ from tests.worker.conftest import add_job
 from worker import celery_app
 from worker.contract import TASK_RUN_JOB, JobPaths
 from worker.execute import execute_job
-from worker.stages import ValidateStage, default_stages, reconstruct_config
+from worker.stages import ValidateStage, default_stages, job_configs
 
 
 def _use_scene(settings: Any, scene: Any) -> None:
@@ -53,15 +53,18 @@ def test_validate_stage_reports_damaged_inputs(store, settings, scene):
     assert error["type"] == "invalid-input" and error["errors"]
 
 
-def test_reconstruct_config_checks_preset_and_fields():
-    cfg = reconstruct_config({"preset": "fast", "options": {"reconstruct": {"iterations": 7}}})
-    assert cfg.iterations == 7
+def test_job_configs_check_preset_and_fields():
+    cfg, capture = job_configs(
+        {"preset": "fast", "options": {"reconstruct": {"iterations": 7}, "capture": {"stride": 2}}}
+    )
+    assert cfg.reconstruct.iterations == 7 and capture.stride == 2
+    assert cfg.reconstruct.train_downscale == 2  # the rest is the fast preset
     with pytest.raises(InputError, match="unknown preset"):
-        reconstruct_config({"preset": "nope"})
+        job_configs({"preset": "nope"})
     with pytest.raises(InputError, match="options.reconstruct.bogus"):
-        reconstruct_config({"preset": "fast", "options": {"reconstruct": {"bogus": 1}}})
-    with pytest.raises(InputError, match="iterations"):
-        reconstruct_config({"preset": "fast", "options": {"reconstruct": {"iterations": -1}}})
+        job_configs({"preset": "fast", "options": {"reconstruct": {"bogus": 1}}})
+    with pytest.raises(InputError, match="options.reconstruct.iterations"):
+        job_configs({"preset": "fast", "options": {"reconstruct": {"iterations": -1}}})
 
 
 def test_celery_settings_and_task_adapter(monkeypatch):

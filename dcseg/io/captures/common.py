@@ -341,6 +341,7 @@ def _finish_frame(
     options: CaptureOptions,
 ) -> Frame:
     if options.size is not None:
+        _check_downscale(options.size, rgb, rel(spec.rgb, root))
         rgb = resize_area(rgb, options.size)
         depth = resize_nearest(depth, options.size)
         intrinsics = intrinsics.scaled(*options.size)
@@ -360,3 +361,14 @@ def _finish_frame(
         c2w=np.array(spec.c2w, dtype=np.float64),
         files=files,
     )
+
+
+def _check_downscale(size: tuple[int, int], rgb: NDArray[np.uint8], name: str) -> None:
+    """Frames are only ever downscaled: a target size above the image's is refused."""
+    width, height = int(rgb.shape[1]), int(rgb.shape[0])
+    if size[0] > width or size[1] > height:
+        raise InputError.single(
+            name,
+            f"target size {size[0]}x{size[1]} is larger than the image's {width}x{height}; "
+            "frames are only ever downscaled (choose a smaller --size / options.capture.size)",
+        )

@@ -188,3 +188,12 @@ def test_colliding_file_stems(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     capture = read_capture(manifest.parent)
     assert capture.names == ("000001", "bad name", "a/./b")
     np.testing.assert_array_equal(capture.frames[1].rgb, rgbd_scene.rgb[1])
+
+
+def test_target_size_above_the_frames_is_refused(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    """No upscaling beyond the capture: the reader names the frame file."""
+    root = _write(rgbd_scene, tmp_path).parent
+    frame = read_capture(root).frames[0]
+    with pytest.raises(InputError, match="only ever downscaled") as caught:
+        read_capture(root, CaptureOptions(size=(frame.width + 1, frame.height)))
+    assert caught.value.problems[0].path.endswith(".png")

@@ -1,0 +1,114 @@
+"""The one config builder (:mod:`dcseg.options`): bounds on every field, presets inside them,
+the same configs for the CLI, the API and the worker, precise errors."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from dcseg.affinity.config import PRESETS as AFFINITY_PRESETS
+from dcseg.affinity.config import AffinityConfig
+from dcseg.cli import main
+from dcseg.config import CaptureOptions, preset
+from dcseg.errors import InputError
+from dcseg.options import (
+    AFFINITY_BOUNDS,
+    NOT_OVERRIDABLE,
+    RECONSTRUCT_BOUNDS,
+    RECONSTRUCT_CHOICES,
+    JobOptions,
+    build_config,
+    from_stored,
+    parse_options,
+)
+from dcseg.reconstruct.config import PRESETS as RECONSTRUCT_PRESETS
+from dcseg.reconstruct.config import ReconstructConfig
+
+
+@pytest.mark.parametrize(
+    ("stage", "bounds", "choices"),
+    [
+        (ReconstructConfig, RECONSTRUCT_BOUNDS, RECONSTRUCT_CHOICES),
+        (AffinityConfig, AFFINITY_BOUNDS, {}),
+    ],
+)
+def test_every_overridable_field_is_bounded_or_a_choice(stage, bounds, choices):
+    names = {f.name for f in dataclasses.fields(stage)} - set(NOT_OVERRIDABLE)
+    assert names == set(bounds) | set(choices)
+
+
+@pytest.mark.parametrize("name", ["fast", "paper"])
+def test_presets_lie_inside_the_bounds(name):
+    for cfg, bounds in (
+        (RECONSTRUCT_PRESETS[name], RECONSTRUCT_BOUNDS),
+        (AFFINITY_PRESETS[name], AFFINITY_BOUNDS),
+    ):
+        for field, (low, high) in bounds.items():
+            value = getattr(cfg, field)
+            assert value is None or low <= value <= high, (name, field, value)
+    overrides = {
+        "reconstruct": {k: getattr(RECONSTRUCT_PRESETS[name], k) for k in RECONSTRUCT_BOUNDS},
+        "affinity": {k: getattr(AFFINITY_PRESETS[name], k) for k in AFFINITY_BOUNDS},
+    }
+    built, _ = build_config(name, parse_options(overrides))
+    assert built == preset(name)
+
+
+def test_defaults_are_the_preset():
+    cfg, capture = build_config("fast", JobOptions())
+    assert cfg == preset("fast") and capture == CaptureOptions()
+
+
+def test_segment_options_seed_every_stage_and_set_scale_and_matcher():
+    options = parse_options({"segment": {"seed": 7, "scale": 0.5, "matcher": "matching"}})
+    cfg, _ = build_config("paper", options)
+    assert cfg == dataclasses.replace(
+        preset("paper").seeded(7),
+        scale=0.5,
+        assign=dataclasses.replace(preset("paper").assign, mode="matching"),
+    )
+
+
+def test_stored_options_rebuild_the_same_configs():
+    options = parse_options(
+        {"capture": {"size": [64, 48], "stride": 2}, "reconstruct": {"iterations": 9}}
+    )
+    stored = options.stored()
+    assert from_stored({"preset": "fast", "options": stored}) == build_config("fast", options)
+    assert stored["reconstruct"] == {"iterations": 9}
+
+
+def test_every_bad_field_is_named():
+    with pytest.raises(InputError) as caught:
+        parse_options(
+            {
+                "capture": {"size": [60000, 2], "depth_trunc": float("nan")},
+                "affinity": {"iterations": 10**9},
+                "nope": 1,
+            }
+        )
+    paths = {p.path for p in caught.value.problems}
+    assert paths == {
+        "options.capture.size.0",
+        "options.capture.depth_trunc",
+        "options.affinity.iterations",
+        "options.nope",
+    }
+
+
+def test_unknown_preset_is_named():
+    with pytest.raises(InputError, match="unknown preset 'huge'"):
+        build_config("huge", JobOptions())
+
+
+def test_cli_refuses_out_of_range_values_naming_the_flag(tmp_path: Path, capsys):
+    args = ["run", str(tmp_path), "--agnostic-masks", str(tmp_path), "--semantic-masks"]
+    args += [str(tmp_path), "--vocabulary", str(tmp_path / "v.txt"), "--out", str(tmp_path / "o")]
+    with pytest.raises(SystemExit, match=r"--scale \(options.segment.scale\)"):
+        main([*args, "--scale", "2"])
+    with pytest.raises(SystemExit, match=r"--size \(options.capture.size.0\)"):
+        main([*args, "--size", "90000x10"])
+    with pytest.raises(SystemExit, match=r"--depth-trunc"):
+        main([*args, "--depth-trunc", "inf"])

@@ -183,12 +183,9 @@ def _train(
     device: str,
 ) -> SavedRun:
     """Read the class-agnostic masks, reconstruct and train: a run without class masks yet."""
-    from dcseg.devices import resolve_device
+    from dcseg.reconstruct.job import device_of
 
-    try:
-        where = resolve_device(device)
-    except ValueError as error:
-        raise InputError.single("device", str(error)) from None
+    where = device_of(device)
     with clock.phase("read"):
         agnostic = read_agnostic_masks(inputs.agnostic_masks, size=_frame_size(capture))
     _check_subset(agnostic, set(capture.names), "class-agnostic masks")
@@ -370,21 +367,14 @@ def _scene(
     if inputs.scene is not None:
         summary["scene"] = str(inputs.scene)
         return read_gaussians_ply(inputs.scene).to(device)
-    from dcseg.reconstruct import fit_gaussians
+    from dcseg.reconstruct.job import reconstruct_scene
 
     def report(step: int, total: int, loss: float) -> None:
         on_progress("reconstruct", step / total, f"step {step}/{total} loss {loss:.4f}")
 
-    result = fit_gaussians(capture, cfg.reconstruct, device=device, on_progress=report)
-    summary.update(
-        {
-            "psnr": result.metrics.psnr,
-            "depth_mae": result.metrics.depth_mae,
-            "gaussians": len(result.gaussians),
-            "seconds": result.seconds,
-        }
-    )
-    return result.gaussians
+    gaussians, record = reconstruct_scene(capture, cfg.reconstruct, device, report)
+    summary.update({k: v for k, v in record.items() if k not in ("views", "config")})
+    return gaussians
 
 
 def _config(saved: SavedRun) -> PipelineConfig:

@@ -6,9 +6,7 @@ the folder it is given. Heavy imports (torch) happen inside ``run``, in the work
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -70,46 +68,24 @@ class ReconstructStage:
         }
 
     def run(self, ctx: StageContext, out: Path) -> StageOutcome:
-        try:
-            from dcseg import reconstruct
-        except ImportError as error:
-            return StageOutcome("skipped", f"reconstruct: not available ({error})")
-        if not hasattr(reconstruct, "fit_gaussians"):
-            return StageOutcome("skipped", "reconstruct: dcseg.reconstruct has no fit_gaussians")
-        from dcseg.devices import resolve_device
-        from dcseg.io.captures import read_capture
-        from dcseg.io.ply import write_gaussians_ply
+        from dcseg.reconstruct.job import reconstruct_job
 
         pipeline, options = job_configs(ctx.config)
-        cfg = pipeline.reconstruct
-        capture = read_capture(ctx.input_root, options)
 
         def on_progress(iteration: int, total: int, loss: float) -> None:
             message = f"reconstruct: step {iteration}/{total}, loss {loss:.4f}"
             ctx.progress(iteration / max(total, 1), message)
 
-        result = reconstruct.fit_gaussians(
-            capture, cfg, device=resolve_device(ctx.settings.device), on_progress=on_progress
+        report = reconstruct_job(
+            ctx.input_root,
+            options,
+            pipeline.reconstruct,
+            out,
+            device=ctx.settings.device,
+            on_progress=on_progress,
+            report_name="metrics.json",
         )
-        write_gaussians_ply(out / "scene.ply", result.gaussians)
-        metrics = {
-            "gaussians": len(result.gaussians),
-            "initial_gaussians": result.initial_count,
-            "extent_m": result.extent,
-            "psnr": _finite(result.metrics.psnr),
-            "depth_mae_m": _finite(result.metrics.depth_mae),
-            "train_frames": list(result.train_frames),
-            "test_frames": list(result.test_frames),
-            "final_loss": result.losses[-1] if result.losses else None,
-            "seconds": result.seconds,
-            "config": dataclasses.asdict(cfg),
-        }
-        _write_json(out / "metrics.json", metrics)
-        return StageOutcome("done", f"reconstruct: {len(result.gaussians)} Gaussians")
-
-
-def _finite(value: float) -> float | None:
-    return value if math.isfinite(value) else None
+        return StageOutcome("done", f"reconstruct: {report['gaussians']} Gaussians")
 
 
 TRAIN_WEIGHTS = {"cache": 0.1, "affinity": 0.9}

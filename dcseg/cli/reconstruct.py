@@ -3,18 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import math
-import platform
-import resource
 import sys
-import time
-from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
-from dcseg import __version__
 from dcseg.cli._options import add_capture_options, build, capture_fields
 from dcseg.cli._pipeline import add_device_option
 
@@ -77,94 +70,25 @@ def _progress_bar(total: int) -> tuple[Any, Any]:
     return bar, on_progress
 
 
-def _finite(value: float) -> float | None:
-    return value if math.isfinite(value) else None
-
-
-def _versions() -> dict[str, str]:
-    import numpy
-    import torch
-
-    return {
-        "dcseg": __version__,
-        "python": platform.python_version(),
-        "torch": torch.__version__,
-        "numpy": numpy.__version__,
-    }
-
-
-def _report(result: Any, cfg: Any, seconds: dict[str, float], backend: str) -> dict[str, Any]:
-    metrics = result.metrics
-    return {
-        "psnr": _finite(metrics.psnr),
-        "depth_mae": _finite(metrics.depth_mae),
-        "views": [
-            {
-                "name": v.name,
-                "psnr": _finite(v.psnr),
-                "depth_mae": _finite(v.depth_mae),
-                "depth_pixels": v.depth_pixels,
-            }
-            for v in metrics.views
-        ],
-        "gaussians": len(result.gaussians),
-        "initial_gaussians": result.initial_count,
-        "extent": result.extent,
-        "train_frames": list(result.train_frames),
-        "test_frames": list(result.test_frames),
-        "final_loss": result.losses[-1] if result.losses else None,
-        "seconds": {key: round(value, 3) for key, value in seconds.items()},
-        "backend": backend,
-        "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        "seed": cfg.seed,
-        "config": asdict(cfg),
-        "versions": _versions(),
-    }
-
-
 def run(args: argparse.Namespace) -> int:
-    from dcseg.devices import resolve_device
     from dcseg.errors import InputError
-    from dcseg.io.captures import read_capture
-    from dcseg.io.ply import write_gaussians_ply
-    from dcseg.reconstruct import fit_gaussians
-    from dcseg.render import select_backend
+    from dcseg.reconstruct.job import reconstruct_job
 
     cfg, options = _config(args)
+    bar, on_progress = _progress_bar(cfg.iterations)
     try:
-        device = resolve_device(args.device)
-        backend = select_backend(device, cfg.backend)
-    except ValueError as error:
-        sys.stderr.write(f"dcseg reconstruct: {error}\n")
-        return 2
-    seconds: dict[str, float] = {}
-    start = time.perf_counter()
-    try:
-        capture = read_capture(args.capture, options)
+        with bar:
+            report = reconstruct_job(
+                args.capture, options, cfg, args.out, device=args.device, on_progress=on_progress
+            )
     except InputError as error:
         for problem in error.problems:
             sys.stderr.write(f"dcseg reconstruct: {problem}\n")
         return 1
-    seconds["read"] = time.perf_counter() - start
-    log.info("read %d frames from %s", len(capture), args.capture)
-
-    bar, on_progress = _progress_bar(cfg.iterations)
-    with bar:
-        result = fit_gaussians(
-            capture, replace(cfg, backend=backend), device=device, on_progress=on_progress
-        )
-    seconds.update(result.seconds)
-
-    start = time.perf_counter()
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_gaussians_ply(args.out / "scene.ply", result.gaussians)
-    seconds["write"] = time.perf_counter() - start
-    report = _report(result, cfg, seconds, backend)
-    (args.out / "reconstruction.json").write_text(json.dumps(report, indent=2) + "\n")
     log.info(
         "wrote %s (%d Gaussians); held-out PSNR %s dB, depth MAE %s m",
         args.out / "scene.ply",
-        len(result.gaussians),
+        report["gaussians"],
         report["psnr"],
         report["depth_mae"],
     )

@@ -1,0 +1,137 @@
+"""Stage 1 as one call, used by ``dcseg reconstruct``, ``dcseg run`` and the worker's stage.
+
+:func:`reconstruct_scene` fits Gaussians to a capture in memory and describes the result;
+:func:`reconstruct_job` reads the capture and writes ``scene.ply`` plus the report.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+import resource
+import time
+from collections.abc import Callable
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import numpy
+import torch
+
+from dcseg import __version__
+from dcseg.config import CaptureOptions
+from dcseg.devices import resolve_device
+from dcseg.errors import InputError
+from dcseg.gaussians import Gaussians
+from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.reconstruct.stage import Reconstruction
+from dcseg.types import Capture
+
+StepProgress = Callable[[int, int, float], None]
+"""``on_progress(step, total, loss)``."""
+
+
+def device_of(name: str) -> torch.device:
+    """:func:`resolve_device`, as an InputError naming ``device``."""
+    try:
+        return resolve_device(name)
+    except ValueError as error:
+        raise InputError.single("device", str(error)) from None
+
+
+def reconstruct_scene(
+    capture: Capture,
+    cfg: ReconstructConfig,
+    device: torch.device,
+    on_progress: StepProgress | None = None,
+) -> tuple[Gaussians, dict[str, Any]]:
+    """Fit Gaussians on ``device``; returns them and their report (metrics, frames, config)."""
+    from dcseg.reconstruct import fit_gaussians
+    from dcseg.render import select_backend
+
+    try:
+        backend = select_backend(device, cfg.backend)
+    except ValueError as error:
+        raise InputError.single("backend", str(error)) from None
+    result = fit_gaussians(
+        capture, replace(cfg, backend=backend), device=device, on_progress=on_progress
+    )
+    return result.gaussians, _report(result, cfg, backend, device)
+
+
+def reconstruct_job(
+    capture_path: Path,
+    options: CaptureOptions,
+    cfg: ReconstructConfig,
+    out: Path,
+    *,
+    device: str = "auto",
+    on_progress: StepProgress | None = None,
+    report_name: str = "reconstruction.json",
+) -> dict[str, Any]:
+    """Read a capture, reconstruct it and write ``out/scene.ply`` and ``out/<report_name>``.
+
+    Returns:
+        The report, with read/write timings, the peak memory and the library versions.
+    """
+    from dcseg.io.captures import read_capture
+    from dcseg.io.ply import write_gaussians_ply
+
+    where = device_of(device)
+    start = time.perf_counter()
+    capture = read_capture(capture_path, options)
+    read_s = time.perf_counter() - start
+    gaussians, report = reconstruct_scene(capture, cfg, where, on_progress)
+    start = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    write_gaussians_ply(out / "scene.ply", gaussians)
+    seconds = {"read": read_s, **report["seconds"], "write": time.perf_counter() - start}
+    report["seconds"] = {key: round(value, 3) for key, value in seconds.items()}
+    report["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    report["versions"] = _versions()
+    (out / report_name).write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    return report
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def _report(
+    result: Reconstruction, cfg: ReconstructConfig, backend: str, device: torch.device
+) -> dict[str, Any]:
+    metrics = result.metrics
+    return {
+        "psnr": _finite(metrics.psnr),
+        "depth_mae": _finite(metrics.depth_mae),
+        "views": [
+            {
+                "name": v.name,
+                "psnr": _finite(v.psnr),
+                "depth_mae": _finite(v.depth_mae),
+                "depth_pixels": v.depth_pixels,
+            }
+            for v in metrics.views
+        ],
+        "gaussians": len(result.gaussians),
+        "initial_gaussians": result.initial_count,
+        "extent": result.extent,
+        "train_frames": list(result.train_frames),
+        "test_frames": list(result.test_frames),
+        "final_loss": result.losses[-1] if result.losses else None,
+        "seconds": dict(result.seconds),
+        "backend": backend,
+        "device": str(device),
+        "seed": cfg.seed,
+        "config": asdict(cfg),
+    }
+
+
+def _versions() -> dict[str, str]:
+    return {
+        "dcseg": __version__,
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "numpy": numpy.__version__,
+    }

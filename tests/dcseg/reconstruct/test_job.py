@@ -1,0 +1,63 @@
+"""One composition of stage 1: the CLI verb and the worker's stage both call
+:func:`dcseg.reconstruct.job.reconstruct_job`, which calls :func:`reconstruct_scene` (as
+``dcseg run`` does), with the device and the config the one builder made."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+import dcseg.io.captures
+import dcseg.reconstruct.job as job
+from dcseg.cli import main
+from dcseg.errors import InputError
+from service.settings import Settings
+from tests.dcseg.reconstruct.scene import make_capture
+from worker.execute import StageContext
+from worker.stages import ReconstructStage
+
+
+class Reached(Exception):
+    """The fake reconstruction was called."""
+
+
+@pytest.fixture
+def calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[Any, ...]]:
+    seen: list[tuple[Any, ...]] = []
+
+    def fake(capture: Any, cfg: Any, device: torch.device, on_progress: Any = None) -> Any:
+        seen.append((len(capture), cfg.iterations, device.type))
+        raise Reached
+
+    monkeypatch.setattr(job, "reconstruct_scene", fake)
+    monkeypatch.setattr(dcseg.io.captures, "read_capture", lambda path, options: make_capture(3))
+    return seen
+
+
+def test_cli_reconstruct_goes_through_reconstruct_job(calls, tmp_path: Path) -> None:
+    argv = ["reconstruct", str(tmp_path), "--out", str(tmp_path / "o"), "--iterations", "9"]
+    with pytest.raises(Reached):
+        main([*argv, "--device", "cpu"])
+    assert calls == [(3, 9, "cpu")]
+
+
+def test_worker_stage_goes_through_reconstruct_job(calls, tmp_path: Path) -> None:
+    config = {"preset": "fast", "options": {"reconstruct": {"iterations": 11}}}
+    ctx = StageContext(
+        "job", tmp_path, config, Settings(device="cpu"), lambda f, m: None, lambda m: None
+    )
+    with pytest.raises(Reached):
+        ReconstructStage().run(ctx, tmp_path / "out")
+    assert calls == [(3, 11, "cpu")]
+
+
+def test_unknown_device_is_an_input_error_naming_it(calls, tmp_path: Path, capsys) -> None:
+    argv = ["reconstruct", str(tmp_path), "--out", str(tmp_path / "o"), "--device", "tpu:0"]
+    assert main(argv) == 1
+    assert "device: unknown device 'tpu:0'" in capsys.readouterr().err
+    with pytest.raises(InputError, match="unknown device"):
+        job.device_of("gpu")
+    assert calls == []

@@ -140,9 +140,14 @@ def run_job(
         semantic = read_semantic_maps(inputs.semantic_masks, vocabulary, size=_frame_size(capture))
         gt = _read_gt(inputs.ground_truth, vocabulary)
     _check_subset(semantic, set(capture.names), "class-aware masks")
-    trained = _train(inputs, capture, cfg, clock, on_progress, device)
-    saved = replace(trained, semantic=dict(semantic), vocabulary=vocabulary)
-    return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True)
+    tmp = staging_dir(out)
+    try:
+        trained = _train(inputs, capture, cfg, clock, on_progress, device, tmp / "state")
+        saved = replace(trained, semantic=dict(semantic), vocabulary=vocabulary)
+        return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True, tmp=tmp)
+    except BaseException:
+        _discard(tmp)
+        raise
 
 
 def train_job(
@@ -161,9 +166,9 @@ def train_job(
     clock = _Clock()
     with clock.phase("read"):
         capture = read_capture(inputs.capture, inputs.capture_options)
-    saved = _train(inputs, capture, cfg, clock, on_progress, device)
     tmp = staging_dir(out)
     try:
+        saved = _train(inputs, capture, cfg, clock, on_progress, device, tmp / "state")
         save_state(tmp, saved.trained, {}, None, saved.previews)
         record = _base_record(saved, cfg, clock)
         write_json(tmp / "run.json", record)
@@ -181,8 +186,12 @@ def _train(
     clock: _Clock,
     on_progress: Progress,
     device: str,
+    state: Path,
 ) -> SavedRun:
-    """Read the class-agnostic masks, reconstruct and train: a run without class masks yet."""
+    """Read the class-agnostic masks, reconstruct and train: a run without class masks yet.
+
+    The blend-weight cache is written into ``state`` (the staged run's ``state/``) view by
+    view, so it is never held in memory as a whole."""
     from dcseg.reconstruct.job import device_of
 
     where = device_of(device)
@@ -195,7 +204,7 @@ def _train(
     with clock.phase("reconstruct"):
         gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction, where)
     with clock.phase("train"):
-        trained = train_scene(gaussians, capture, agnostic, cfg, on_progress)
+        trained = train_scene(gaussians, capture, agnostic, cfg, on_progress, cache_dir=state)
     picked = [capture.frames[i] for i in preview_indices(len(capture))]
     previews = [(f.name, f.rgb) for f in picked]
     record = {"inputs": _describe(inputs), "reconstruction": reconstruction}
@@ -247,7 +256,7 @@ def _with_semantic(saved: SavedRun, masks: Path | None, vocabulary_file: Path | 
     if masks is None or vocabulary_file is None:
         raise InputError.single("semantic masks", "new class-aware masks need a vocabulary")
     vocabulary = read_vocabulary(vocabulary_file)
-    size = (saved.trained.views[0].blend.width, saved.trained.views[0].blend.height)
+    size = (saved.trained.views[0].width, saved.trained.views[0].height)
     semantic = read_semantic_maps(masks, vocabulary, size=size)
     _check_subset(semantic, {v.name for v in saved.trained.views}, str(masks))
     return replace(saved, semantic=semantic, vocabulary=vocabulary)
@@ -269,12 +278,13 @@ def _finish(
     gt: GroundTruth | None,
     on_progress: Progress,
     train_state: bool = False,
+    tmp: Path | None = None,
 ) -> dict[str, Any]:
     trained, vocabulary = saved.trained, saved.vocabulary
-    with clock.phase("segment"):
-        segmentation = segment_scene(trained, saved.semantic, len(vocabulary), cfg, on_progress)
-    tmp = staging_dir(out)
+    tmp = staging_dir(out) if tmp is None else tmp
     try:
+        with clock.phase("segment"):
+            segmentation = segment_scene(trained, saved.semantic, len(vocabulary), cfg, on_progress)
         with clock.phase("evaluate"):
             metrics = None if gt is None else _evaluate(saved, segmentation.labels(), gt, cfg, tmp)
         with clock.phase("write"):
@@ -321,7 +331,7 @@ def _base_record(saved: SavedRun, cfg: PipelineConfig, clock: _Clock) -> dict[st
         "peak_memory_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         "backend": select_backend(saved.trained.gaussians.device, cfg.reconstruct.backend),
         "versions": _versions(),
-        "cache_mb": round(sum(v.blend.nbytes() for v in saved.trained.views) / 2**20, 1),
+        "cache_mb": round(sum(v.cache_bytes() for v in saved.trained.views) / 2**20, 1),
     }
 
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,6 +18,7 @@ from numpy.typing import NDArray
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
 from dcseg.assign.consistency import inconsistent
 from dcseg.assign.stage import Assignment, assign_labels
+from dcseg.blend import BlendWeights
 from dcseg.cluster.features import Clustering
 from dcseg.cluster.outliers import compact_labels
 from dcseg.cluster.stage import cluster_features
@@ -24,7 +26,7 @@ from dcseg.config import CacheConfig, PipelineConfig
 from dcseg.evaluate.points import transfer_nearest, vote_projection
 from dcseg.evaluate.stage import evaluate_scenes
 from dcseg.gaussians import Gaussians
-from dcseg.io.run_state import ViewState
+from dcseg.io.run_state import ViewState, write_view
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
 from dcseg.segment import class_agreement, cluster_map, label_map
@@ -87,19 +89,32 @@ class Segmentation:
 
 
 def build_views(
-    gaussians: Gaussians, capture: Capture, cfg: CacheConfig, on_progress: Progress = _quiet
+    gaussians: Gaussians,
+    capture: Capture,
+    cfg: CacheConfig,
+    on_progress: Progress = _quiet,
+    folder: Path | None = None,
 ) -> tuple[ViewState, ...]:
-    """The blending-weight cache of every frame of the capture."""
+    """The blending-weight cache of every frame of the capture.
+
+    With ``folder``, each view's weights are written to ``folder/views/<i>.npz`` as soon as
+    they are computed and not kept (the run's ``state/`` layout): memory then holds one view's
+    weights at a time however many frames the capture has. Without it they stay in memory.
+    """
     views = []
     for i, frame in enumerate(capture.frames):
         camera = Camera.from_frame(frame)
         blend = blend_weights(
             gaussians, camera, min_weight=cfg.min_weight, max_per_pixel=cfg.max_per_pixel
         )
-        views.append(
-            ViewState(frame.name, frame.intrinsics.matrix(), frame.c2w.copy(), blend, frame.depth)
-        )
+        K, c2w = frame.intrinsics.matrix(), frame.c2w.copy()
+        if folder is None:
+            views.append(ViewState.in_memory(frame.name, K, c2w, blend, frame.depth))
+        else:
+            path = folder / "views" / f"{i}.npz"
+            views.append(write_view(path, frame.name, K, c2w, blend, frame.depth))
         on_progress("cache", (i + 1) / len(capture), f"view {frame.name}: {blend.nnz} weights")
+        del blend
     return tuple(views)
 
 
@@ -109,6 +124,7 @@ def train_scene(
     agnostic: Mapping[str, AgnosticMasks],
     cfg: PipelineConfig,
     on_progress: Progress = _quiet,
+    cache_dir: Path | None = None,
 ) -> TrainedScene:
     """Cache blending weights per view and train affinity features on the frozen Gaussians.
 
@@ -118,16 +134,41 @@ def train_scene(
         agnostic: class-agnostic masks per frame name, at the frames' resolution.
         cfg: the pipeline configuration.
         on_progress: progress callback.
+        cache_dir: where the cache is written (see :func:`build_views`); None = in memory.
     """
     frozen = gaussians.detach()
-    views = build_views(frozen, capture, cfg.cache, on_progress)
-    inputs = [AffinityView(v.name, v.blend, agnostic.get(v.name), v.depth, v.K) for v in views]
+    views = build_views(frozen, capture, cfg.cache, on_progress, cache_dir)
+    inputs = [AffinityView(v.name, _loader(v), agnostic.get(v.name), v.depth, v.K) for v in views]
 
     def report(step: int, total: int, loss: float) -> None:
         on_progress("affinity", step / total, f"step {step}/{total} loss {loss:.4f}")
 
     affinity = train_affinity(frozen, inputs, cfg.affinity, on_progress=report)
     return TrainedScene(frozen, affinity, views)
+
+
+def _loader(view: ViewState) -> BlendWeights | Callable[[], BlendWeights]:
+    """The view's weights, or how to read them when they live in the cache folder."""
+    return view.blend if view.source is None else lambda: view.blend
+
+
+class _Blends(Sequence[BlendWeights]):
+    """The views' blending weights, read one view at a time as they are iterated."""
+
+    def __init__(self, views: Sequence[ViewState]) -> None:
+        self._views = views
+
+    def __len__(self) -> int:
+        return len(self._views)
+
+    @overload
+    def __getitem__(self, index: int) -> BlendWeights: ...
+    @overload
+    def __getitem__(self, index: slice) -> Sequence[BlendWeights]: ...
+    def __getitem__(self, index: int | slice) -> BlendWeights | Sequence[BlendWeights]:
+        if isinstance(index, slice):
+            return _Blends(self._views[index])
+        return self._views[index].blend
 
 
 def segment_scene(
@@ -189,7 +230,7 @@ def _drop_inconsistent(
     views = [v for v in trained.views if v.name in semantic]
     classes = label_map(clustering.labels, assignment.labels)
     agree, total = class_agreement(
-        [v.blend for v in views], [semantic[v.name].classes for v in views], classes
+        _Blends(views), [semantic[v.name].classes for v in views], classes
     )
     labels = clustering.labels.copy()
     drop = inconsistent(clustering.labels, classes, agree, total, cfg.assign.min_share_ratio)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +23,8 @@ class AffinityView:
     Attributes:
         name: the frame stem (for log messages).
         blend: blending weights of the frozen Gaussians in this view (any resolution; mask
-            pixels map to blend pixels by nearest neighbour).
+            pixels map to blend pixels by nearest neighbour), or a function that reads them
+            (called once per training step on the view: the weights are not kept).
         masks: the frame's class-agnostic masks; None or empty = no masks, the view is skipped.
         depth: ``[H, W]`` metres (capture depth, or rendered depth where the capture has none),
             0 = invalid; used for the per-mask 3D scales.
@@ -30,10 +32,14 @@ class AffinityView:
     """
 
     name: str
-    blend: BlendWeights
+    blend: BlendWeights | Callable[[], BlendWeights]
     masks: AgnosticMasks | None
     depth: NDArray[np.float32]
     K: NDArray[np.float64]
+
+    def weights(self) -> BlendWeights:
+        """The view's blending weights (read now when given as a function)."""
+        return self.blend if isinstance(self.blend, BlendWeights) else self.blend()
 
 
 @dataclass(frozen=True)

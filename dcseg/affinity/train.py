@@ -95,8 +95,7 @@ def train_affinity(
 
 @dataclass(frozen=True)
 class _PreparedView:
-    name: str
-    blend: BlendWeights
+    view: AffinityView
     packed: PackedMasks
 
 
@@ -136,7 +135,7 @@ class _Trainer:
             view.packed, self.upper, cfg.rays, cfg.random_scales, cfg.max_pair_weight, self.rng
         )
         slots = sample_slots(self.knn.shape[1], cfg.knn_sample, self.rng)
-        blend = _blend_on(view.blend, device)  # one view at a time: the cache stays on the host
+        blend = _blend_on(view.view.weights(), device)  # one view at a time, read per step
         pixels = _blend_pixels(batch.pixels, view.packed, blend)
         rendered = self.render(blend, pixels, slots)
         q = torch.from_numpy(quantile_transform(batch.scales, self.quantiles))
@@ -183,7 +182,7 @@ def _prepare_views(views: Sequence[AffinityView], cfg: AffinityConfig) -> list[_
         if packed is None:
             logger.warning("affinity: no mask of view %s has a usable 3D scale", view.name)
             continue
-        out.append(_PreparedView(view.name, view.blend, packed))
+        out.append(_PreparedView(view, packed))
     if not out:
         raise ValueError("no view has masks with a usable 3D scale (valid depth under the masks)")
     return out

@@ -6,7 +6,9 @@ Layout under ``RUN/state/``::
     affinity.npz         features [N,D], gate_weight [D,1], gate_bias [D], scale_quantiles [Q],
                          losses [T]
     views.json           per view: name, width, height, K (3x3), c2w (4x4)
-    views/<i>.npz        per view: blend weights (offsets, ids, weights) and depth (float16 m)
+    views/<i>.npz        per view: blend weights (offsets int64, ids int32, weights float32)
+                         and depth (float16 m); written while the cache is built and read
+                         back one view at a time (the whole cache is never in memory)
     semantic/            the class-aware maps the run used (for re-clustering)
     vocabulary.json      their vocabulary
 
@@ -16,6 +18,8 @@ Arrays are written with :func:`numpy.savez` (uncompressed: it is a cache read ba
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,19 +40,75 @@ STATE_VERSION = 1
 class ViewState:
     """One view as the segmentation stages need it after training.
 
+    The blending weights live either in memory or in a ``views/<i>.npz`` file of the cache
+    (:func:`write_view`); :attr:`blend` then reads them on every access and nothing keeps them,
+    so a stage that visits the views one by one holds one view's weights at a time.
+
     Attributes:
         name: the frame stem.
         K: ``[3, 3]`` intrinsics.
         c2w: ``[4, 4]`` camera-to-world pose.
-        blend: the frozen Gaussians' blending weights in this view.
         depth: ``[H, W]`` float32 capture depth (metres, 0 = invalid), for evaluation.
+        width, height: the view's resolution (of the blending weights and the depth).
+        cached: the weights in memory, or None when they are read from ``source``.
+        source: the view's cache file, or None for in-memory weights.
     """
 
     name: str
     K: NDArray[np.float64]
     c2w: NDArray[np.float64]
-    blend: BlendWeights
     depth: NDArray[np.float32]
+    width: int
+    height: int
+    cached: BlendWeights | None = None
+    source: Path | None = None
+
+    def __post_init__(self) -> None:
+        if (self.cached is None) == (self.source is None):
+            raise ValueError("a view needs exactly one of cached weights or a source file")
+
+    @classmethod
+    def in_memory(
+        cls,
+        name: str,
+        K: NDArray[np.float64],
+        c2w: NDArray[np.float64],
+        blend: BlendWeights,
+        depth: NDArray[np.float32],
+    ) -> ViewState:
+        return cls(name, K, c2w, depth, blend.width, blend.height, cached=blend)
+
+    @property
+    def blend(self) -> BlendWeights:
+        """The view's blending weights (read from the cache file when not in memory)."""
+        if self.cached is not None:
+            return self.cached
+        assert self.source is not None
+        return _read_blend(self.source, self.width, self.height)
+
+    def cache_bytes(self) -> int:
+        """Bytes the view's weights take (on disk, or in memory)."""
+        if self.source is not None:
+            return self.source.stat().st_size
+        assert self.cached is not None
+        return self.cached.nbytes()
+
+
+def write_view(
+    path: Path, name: str, K: NDArray[np.float64], c2w: NDArray[np.float64],
+    blend: BlendWeights, depth: NDArray[np.float32],
+) -> ViewState:  # fmt: skip
+    """Write one view's weights (offsets int64, ids int32, weights float32) and depth (float16)
+    to ``path``; the returned view reads them back on use."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(
+        path,
+        offsets=blend.offsets.cpu().numpy(),
+        ids=blend.ids.cpu().numpy().astype(np.int32, copy=False),
+        weights=blend.weights.cpu().numpy(),
+        depth=depth.astype(np.float16),
+    )
+    return ViewState(name, K, c2w, depth, blend.width, blend.height, source=path)
 
 
 def save_affinity(path: Path, result: AffinityResult) -> None:
@@ -76,29 +136,35 @@ def load_affinity(path: Path) -> AffinityResult:
 
 
 def save_views(folder: Path, views: Sequence[ViewState]) -> None:
-    """Write ``views.json`` and one ``views/<i>.npz`` per view."""
+    """Write ``views.json`` and one ``views/<i>.npz`` per view (views already cached at that
+    path are left as they are; others are linked, or written from memory)."""
     (folder / "views").mkdir(parents=True, exist_ok=True)
     meta = []
     for i, view in enumerate(views):
-        b = view.blend
-        np.savez(
-            folder / "views" / f"{i}.npz",
-            offsets=b.offsets.cpu().numpy(),
-            ids=b.ids.cpu().numpy(),
-            weights=b.weights.cpu().numpy(),
-            depth=view.depth.astype(np.float16),
-        )
+        target = folder / "views" / f"{i}.npz"
+        if view.source is None:
+            write_view(target, view.name, view.K, view.c2w, view.blend, view.depth)
+        elif view.source.resolve() != target.resolve():
+            _link_or_copy(view.source, target)
         meta.append(
             {
                 "name": view.name,
-                "width": b.width,
-                "height": b.height,
+                "width": view.width,
+                "height": view.height,
                 "K": view.K.tolist(),
                 "c2w": view.c2w.tolist(),
             }
         )
     body = {"version": STATE_VERSION, "views": meta}
     (folder / "views.json").write_text(json.dumps(body) + "\n", encoding="utf-8")
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    dst.unlink(missing_ok=True)
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
 
 
 def load_views(folder: Path) -> list[ViewState]:
@@ -114,20 +180,27 @@ def load_views(folder: Path) -> list[ViewState]:
 
 
 def _load_view(folder: Path, index: int, meta: dict[str, Any]) -> ViewState:
-    data = _load_npz(folder / "views" / f"{index}.npz", ("offsets", "ids", "weights", "depth"))
-    blend = BlendWeights(
-        height=int(meta["height"]),
-        width=int(meta["width"]),
-        offsets=torch.from_numpy(data["offsets"]),
-        ids=torch.from_numpy(data["ids"]),
-        weights=torch.from_numpy(data["weights"]),
-    )
+    path = folder / "views" / f"{index}.npz"
+    depth = _load_npz(path, ("depth",))["depth"].astype(np.float32)
     return ViewState(
         name=str(meta["name"]),
         K=np.asarray(meta["K"], dtype=np.float64),
         c2w=np.asarray(meta["c2w"], dtype=np.float64),
-        blend=blend,
-        depth=data["depth"].astype(np.float32),
+        depth=depth,
+        width=int(meta["width"]),
+        height=int(meta["height"]),
+        source=path,
+    )
+
+
+def _read_blend(path: Path, width: int, height: int) -> BlendWeights:
+    data = _load_npz(path, ("offsets", "ids", "weights"))
+    return BlendWeights(
+        height=height,
+        width=width,
+        offsets=torch.from_numpy(data["offsets"]),
+        ids=torch.from_numpy(data["ids"]),
+        weights=torch.from_numpy(data["weights"]),
     )
 
 

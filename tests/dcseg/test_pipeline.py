@@ -267,3 +267,52 @@ def test_whole_pipeline_on_cuda(scene: Path, tmp_path: Path) -> None:
         assert (out / name).is_file(), name
     again = resegment_job(out, tmp_path / "again", scale=0.5)
     assert again["counts"]["clusters"] >= 1
+
+
+class LiveBlends:
+    """Bytes of blending weights alive at once (every BlendWeights ever built is tracked)."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        import weakref
+
+        from dcseg.blend import BlendWeights
+
+        self.live = 0
+        self.peak = 0
+        original = BlendWeights.__post_init__
+
+        def tracked(blend: BlendWeights) -> None:
+            original(blend)
+            size = blend.nbytes()
+            self.live += size
+            self.peak = max(self.peak, self.live)
+            weakref.finalize(blend, self._release, size)
+
+        monkeypatch.setattr(BlendWeights, "__post_init__", tracked)
+
+    def _release(self, size: int) -> None:
+        self.live -= size
+
+
+def test_cache_memory_does_not_grow_with_frames(
+    scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A run holds one or two views' blending weights at a time, whatever the frame count:
+    the cache is written view by view into the staged ``state/`` and read back per use
+    (affinity steps, cluster maps, the consistency filter). Measured in-process: 18 frames
+    peak no higher than 6 frames (in memory, the same views would sum up)."""
+    peaks = {}
+    for frames in (6, 18):
+        bundle = tmp_path / f"scene{frames}"
+        args = ["synth", str(bundle), "--frames", str(frames), "--size", "64x48"]
+        assert main([*args, "--noise", "clean"]) == 0
+        tracker = LiveBlends(monkeypatch)
+        record = run_job(inputs_of(bundle), tiny_config(), tmp_path / f"run{frames}")
+        peaks[frames] = tracker.peak
+        cache = record["cache_mb"] * 2**20
+        monkeypatch.undo()
+        view_bytes = cache / frames
+        assert tracker.peak <= 3 * view_bytes * 1.3, (frames, tracker.peak, view_bytes)
+    assert peaks[18] <= 1.3 * peaks[6], peaks
+    resegmented = resegment_job(tmp_path / "run18", tmp_path / "again", scale=0.5)
+    assert resegmented["cache_mb"] == record["cache_mb"]  # state/ linked, not grown

@@ -135,7 +135,7 @@ def test_config_does_not_import_torch():
 
 def test_sparse_render_matches_blend_gather():
     scene = synthetic_scene(seed=0, n_views=1)
-    blend = scene.views[0].blend
+    blend = scene.views[0].weights()
     knn = knn_indices(scene.gaussians.means, 16)
     slots = torch.tensor([0, 2, 5, 7, 9, 11, 13, 15])
     pixels = torch.tensor([0, 10 * 64 + 5, 15 * 64 + 25, 20 * 64 + 45, 47 * 64 + 63])

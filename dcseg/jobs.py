@@ -101,16 +101,23 @@ def _present(path: Path | None) -> Path:
 
 
 class _Clock:
-    """Seconds per named phase."""
+    """Seconds per named phase, and the process's peak memory by the end of each phase."""
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
+        self.peak_mb: dict[str, float] = {}
 
     @contextmanager
     def phase(self, name: str) -> Iterator[None]:
         start = time.perf_counter()
         yield
         self.seconds[name] = round(self.seconds.get(name, 0.0) + time.perf_counter() - start, 3)
+        self.peak_mb[name] = _peak_mb()
+
+
+def _peak_mb() -> float:
+    """The process's peak resident memory so far (MB)."""
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
 
 
 def _quiet(stage: str, fraction: float, message: str) -> None:
@@ -328,7 +335,8 @@ def _base_record(saved: SavedRun, cfg: PipelineConfig, clock: _Clock) -> dict[st
         "config": cfg.to_dict(),
         "seed": cfg.seed,
         "seconds": clock.seconds,
-        "peak_memory_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "peak_memory_mb": _peak_mb(),
+        "peak_memory_mb_by_phase": clock.peak_mb,
         "backend": select_backend(saved.trained.gaussians.device, cfg.reconstruct.backend),
         "versions": _versions(),
         "cache_mb": round(sum(v.cache_bytes() for v in saved.trained.views) / 2**20, 1),

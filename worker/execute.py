@@ -362,6 +362,7 @@ def execute_job(
             return _finish(store, job_id, worker, "canceled", None)
         except Interrupted:
             logger.info("job %s interrupted by shutdown; it resumes on the next claim", job_id)
+            _not_a_crash(store, job_id, worker)
             return "interrupted"
         except LeaseLost:
             logger.warning("job %s was taken over by another worker; stopping", job_id)
@@ -372,10 +373,19 @@ def execute_job(
     return _finish(store, job_id, worker, "succeeded", None)
 
 
+def _not_a_crash(store: Store, job_id: str, worker: str) -> None:
+    """A run stopped by a shutdown gives its attempt back (``max_attempts`` counts crashes)."""
+    try:
+        store.release_attempt(job_id, worker)
+    except Exception:  # the job then counts one attempt more; never block the shutdown
+        logger.warning("job %s: could not release its attempt", job_id, exc_info=True)
+
+
 def _finish(
     store: Store, job_id: str, worker: str, status: str, error: dict[str, Any] | None
 ) -> str:
-    if store.finish_job(job_id, status, error, message=status, worker=worker):
-        return status
+    recorded = store.finish_job(job_id, status, error, message=status, worker=worker)
+    if recorded is not None:
+        return recorded  # "canceled" when a cancel was acknowledged meanwhile
     logger.warning("job %s: not recorded as %s (taken over by another worker)", job_id, status)
     return "lost"

@@ -125,7 +125,7 @@ def open_state(settings: Settings) -> AppState:
     """Open the store (creating or checking the schema), load keys, build the queue."""
     settings.storage_dir.mkdir(parents=True, exist_ok=True)
     remove_abandoned_uploads(settings.storage_dir)
-    store = Store(settings.db_url)
+    store = Store.from_settings(settings)
     store.init_schema()
     keys = settings.parsed_api_keys()
     key_hashes = store.sync_api_keys(keys)

@@ -9,7 +9,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 GIB = 2**30
@@ -50,6 +50,31 @@ class Settings(BaseSettings):
 
     max_running_jobs_per_tenant: int = Field(default=4, ge=1)
     """Unfinished (queued, running, canceling) jobs a tenant may have; more answer 429."""
+
+    max_attempts: int = Field(default=3, ge=1)
+    """Runs a job may start. A worker that dies mid-job (OOM kill, segfault) leaves its job to
+    be claimed again; after this many claims the job fails (``too-many-attempts``) instead of
+    being requeued forever. Runs stopped by a worker shutdown do not count."""
+
+    sqlite_busy_timeout_s: float | None = Field(default=None, gt=0)
+    """How long a SQLite write waits for another writer's lock before failing; None = one
+    ``heartbeat_s``. Must be below the stale-lease window ``3 * heartbeat_s``, so a heartbeat
+    stuck behind a lock fails and retries instead of letting a live lease look dead."""
+
+    @property
+    def busy_timeout_s(self) -> float:
+        """The effective SQLite busy timeout (:attr:`sqlite_busy_timeout_s`)."""
+        return self.sqlite_busy_timeout_s or self.heartbeat_s
+
+    @model_validator(mode="after")
+    def _busy_timeout_below_stale_lease(self) -> Settings:
+        if self.busy_timeout_s >= 3 * self.heartbeat_s:
+            raise ValueError(
+                f"sqlite_busy_timeout_s (DCSEG_SQLITE_BUSY_TIMEOUT_S = {self.busy_timeout_s:g} s)"
+                " must be smaller than the stale-lease window 3 * heartbeat_s"
+                f" (DCSEG_HEARTBEAT_S = {self.heartbeat_s:g} s: {3 * self.heartbeat_s:g} s)"
+            )
+        return self
 
     rate_limit_per_minute: int = Field(default=600, ge=1)
     """Requests per tenant per minute (per API process); more answer 429."""

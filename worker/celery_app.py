@@ -51,7 +51,7 @@ app = make_celery()
 @lru_cache
 def _store() -> Store:
     """One store per worker process, opened on first use (after the pool forked)."""
-    store = Store(get_settings().db_url)
+    store = Store.from_settings(get_settings())
     store.init_schema()
     return store
 

@@ -215,11 +215,8 @@ class _Runner:
             key = _key_hash(stage.key(config))
             tmp = self.paths.output / f".tmp-{stage.name}-{uuid.uuid4().hex[:8]}"
             tmp.mkdir()
-            reused = parent_stages.get(stage.name)
-            if parent and reused and reused.get("key") == key and reused["status"] == "done":
-                _link_tree(parent.output / stage.name, tmp)
-                outcome = StageOutcome("done", f"reused from job {parent.job_id}", {"reused": True})
-            else:
+            outcome = _reuse_parent_stage(parent, parent_stages.get(stage.name), key, tmp)
+            if outcome is None:
                 ctx = StageContext(
                     job_id=job_id,
                     input_root=input_root,
@@ -264,18 +261,42 @@ class _Runner:
         }
 
 
-def _link_tree(source: Path, dest: Path) -> None:
-    """Hard-link (or copy) every file of ``source`` into ``dest``: artifacts are immutable."""
-    for path in sorted(source.rglob("*")):
-        target = dest / path.relative_to(source)
-        if path.is_dir():
-            target.mkdir(parents=True, exist_ok=True)
-            continue
+def _reuse_parent_stage(
+    parent: JobPaths | None, entry: dict[str, Any] | None, key: str, tmp: Path
+) -> StageOutcome | None:
+    """Link the parent's finished stage into ``tmp`` when its key matches, or return None to
+    run the stage. Also None when a file of the parent's manifest entry is gone or changed
+    (the parent was deleted meanwhile): the stage is redone rather than recorded empty."""
+    if parent is None or entry is None or entry.get("key") != key or entry["status"] != "done":
+        return None
+    try:
+        _link_files(parent.output, entry["files"], entry["name"], tmp)
+    except (OSError, ValueError) as error:
+        logger.warning(
+            "stage %s of parent job %s cannot be reused (%s); running it",
+            entry["name"],
+            parent.job_id,
+            error,
+        )
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir()
+        return None
+    return StageOutcome("done", f"reused from job {parent.job_id}", {"reused": True})
+
+
+def _link_files(source: Path, files: dict[str, Any], name: str, dest: Path) -> None:
+    """Hard-link (or copy) each manifest file ``<name>/<path>`` of ``source`` to
+    ``dest/<path>``; ValueError when a linked file's size differs from the manifest's."""
+    for entry, meta in files.items():
+        relative = Path(entry).relative_to(name)
+        target = dest / relative
         target.parent.mkdir(parents=True, exist_ok=True)
         try:
-            os.link(path, target)
-        except OSError:
-            shutil.copy2(path, target)
+            os.link(source / entry, target)
+        except OSError:  # another filesystem, say (a vanished file fails the copy too)
+            shutil.copy2(source / entry, target)
+        if target.stat().st_size != meta["size"]:
+            raise ValueError(f"{entry} is {target.stat().st_size} bytes, not {meta['size']}")
 
 
 def default_worker_id() -> str:
@@ -341,6 +362,7 @@ def execute_job(
             return _finish(store, job_id, worker, "canceled", None)
         except Interrupted:
             logger.info("job %s interrupted by shutdown; it resumes on the next claim", job_id)
+            _not_a_crash(store, job_id, worker)
             return "interrupted"
         except LeaseLost:
             logger.warning("job %s was taken over by another worker; stopping", job_id)
@@ -351,10 +373,19 @@ def execute_job(
     return _finish(store, job_id, worker, "succeeded", None)
 
 
+def _not_a_crash(store: Store, job_id: str, worker: str) -> None:
+    """A run stopped by a shutdown gives its attempt back (``max_attempts`` counts crashes)."""
+    try:
+        store.release_attempt(job_id, worker)
+    except Exception:  # the job then counts one attempt more; never block the shutdown
+        logger.warning("job %s: could not release its attempt", job_id, exc_info=True)
+
+
 def _finish(
     store: Store, job_id: str, worker: str, status: str, error: dict[str, Any] | None
 ) -> str:
-    if store.finish_job(job_id, status, error, message=status, worker=worker):
-        return status
+    recorded = store.finish_job(job_id, status, error, message=status, worker=worker)
+    if recorded is not None:
+        return recorded  # "canceled" when a cancel was acknowledged meanwhile
     logger.warning("job %s: not recorded as %s (taken over by another worker)", job_id, status)
     return "lost"

@@ -28,7 +28,7 @@ STOP_TIMEOUT_S = 10.0
 
 def run_local_worker(settings: Settings, stop: Any) -> None:
     """Run queued jobs until ``stop`` (a threading or multiprocessing Event) is set."""
-    store = Store(settings.db_url)
+    store = Store.from_settings(settings)
     try:
         while not stop.is_set():
             job_id = store.next_queued()

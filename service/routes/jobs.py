@@ -25,7 +25,7 @@ from service.jobs import (
 from service.models import Job
 from service.problems import ApiProblem, problem_responses
 from service.schemas import JobCreate, JobPublic, JobsPublic, JobStatus
-from service.store import Conflict, Cursor, new_id
+from service.store import Conflict, Cursor, TooManyJobs, new_id
 from worker.contract import TERMINAL, JobPaths
 
 logger = logging.getLogger(__name__)
@@ -55,7 +55,7 @@ def _job_response(state: AppState, job: Job, status_code: int = 200) -> JSONResp
 
 
 def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
-    """Check the inputs and the tenant's cap, then insert the queued job."""
+    """Check the inputs, then insert the queued job within the tenant's cap."""
     upload_id = body.upload_id
     if body.parent_job_id is not None:
         parent = state.store.get_job(body.parent_job_id, tenant)
@@ -71,14 +71,6 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
     if upload is None:
         raise ApiProblem(404, f"no upload {upload_id!r}", slug="not-found")
     check_options(body, upload.summary)
-    active = state.store.count_active(tenant)
-    if active >= state.settings.max_running_jobs_per_tenant:
-        raise ApiProblem(
-            429,
-            f"{active} unfinished jobs; the limit is {state.settings.max_running_jobs_per_tenant}",
-            slug="too-many-jobs",
-            headers={"Retry-After": "30"},
-        )
     config = {"preset": body.preset, "options": body.options.stored()}
     job = Job(
         id=new_id(),
@@ -90,7 +82,17 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
         event_seq=0,
         message="queued",
     )
-    return state.store.create_job(job)
+    return _insert_capped(state, job)
+
+
+def _insert_capped(state: AppState, job: Job) -> Job:
+    """Insert the job unless its tenant is at its cap (checked in the insert's transaction)."""
+    try:
+        return state.store.create_job(job, max_active=state.settings.max_running_jobs_per_tenant)
+    except TooManyJobs as full:
+        raise ApiProblem(
+            429, str(full), slug="too-many-jobs", headers={"Retry-After": "30"}
+        ) from None
 
 
 def check_options(body: JobCreate, summary: dict[str, Any]) -> None:

@@ -295,7 +295,10 @@ def test_stream_ends_after_its_lifetime(client, upload_id, monkeypatch):
     job_id = queued_job(client, upload_id)
     state.settings = state.settings.model_copy(update={"max_stream_s": 120.0})
     chunks, _ = run_stream(monkeypatch, state, job_id, FakeTime(3600.0))
-    assert chunks and "reconnect" in chunks[-1] and chunks[-1].startswith(":")
+    sent = [chunk.split("\n")[0] for chunk in chunks if chunk.startswith("id: ")]
+    assert sent, "the queued job's status event"
+    last_id = sent[-1].removeprefix("id: ")
+    assert chunks[-1] == f": stream lifetime reached; reconnect with Last-Event-ID: {last_id}\n\n"
     assert not any("event: completed" in chunk for chunk in chunks)
 
 

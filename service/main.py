@@ -22,7 +22,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from dcseg import __version__
 from service import problems
-from service.deps import LOCAL_TENANT, AppState, RateLimiter
+from service.deps import LOCAL_TENANT, AppState, make_limiter
 from service.queue import JobQueue, make_queue
 from service.routes import artifacts, events, health, jobs, uploads
 from service.settings import Settings, get_settings
@@ -131,14 +131,16 @@ def open_state(settings: Settings) -> AppState:
     key_hashes = store.sync_api_keys(keys)
     if not keys:
         store.ensure_tenant(LOCAL_TENANT)
-        logger.warning("no API keys configured: authentication is off (tenant %r)", LOCAL_TENANT)
+        reach = "every client" if settings.allow_unauthenticated else "loopback clients only"
+        logger.warning("no API keys: authentication is off (tenant %r, %s)", LOCAL_TENANT, reach)
     queue = make_queue(settings)
     return AppState(
         settings=settings,
         store=store,
         queue=queue,
         key_hashes=key_hashes,
-        limiter=RateLimiter(settings.rate_limit_per_minute),
+        limiter=make_limiter(settings, "requests", settings.rate_limit_per_minute),
+        auth_limiter=make_limiter(settings, "failed-auth", settings.failed_auth_per_minute),
     )
 
 

@@ -9,10 +9,11 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 GIB = 2**30
+REDIS_SCHEMES = ("redis://", "rediss://")
 
 
 class Settings(BaseSettings):
@@ -43,10 +44,43 @@ class Settings(BaseSettings):
     max_archive_entries: int = Field(default=100_000, ge=1)
     """Largest number of entries in an uploaded archive."""
 
-    api_keys: str = ""
-    """``tenant:key`` pairs separated by commas, or ``@/path/file`` with one pair per line.
-    Empty = no authentication, every request belongs to tenant ``local`` (``dcseg serve``
-    refuses this unless it binds to a loopback address)."""
+    api_keys: SecretStr = SecretStr("")
+    """``tenant:key`` pairs separated by commas, or ``@/path/file`` with one pair per line
+    (``#`` starts a comment). Secret: ``repr``/``str``/logging of the settings never show it.
+    No pairs (empty, or a file of comments) = no authentication: every request belongs to
+    tenant ``local`` and, unless :attr:`allow_unauthenticated`, only loopback is served."""
+
+    allow_unauthenticated: bool = False
+    """With no API keys: False (default) serves only loopback clients that name the server by
+    a loopback ``Host`` (``localhost``, ``127.0.0.0/8``, ``[::1]``; others answer 403/421, which
+    stops DNS rebinding) and ``dcseg serve`` refuses a non-loopback ``--host``; True serves
+    everyone as tenant ``local``. Ignored when keys are configured."""
+
+    min_api_key_length: int = Field(default=16, ge=1)
+    """Shortest accepted API key; a shorter one stops startup with an error naming its tenant."""
+
+    rate_limit_url: str | None = None
+    """Redis URL of the rate limiter shared by every API replica; None = :attr:`broker_url` when
+    it is a ``redis://``/``rediss://`` URL, else per process; ``memory`` = per process."""
+
+    rate_limit_key_prefix: str = "dcseg:ratelimit:"
+    """Prefix of the shared limiter's Redis keys."""
+
+    failed_auth_per_minute: int = Field(default=30, ge=1)
+    """Requests with a missing or wrong API key per client address per minute; past it every
+    request from that address answers 429 until the minute ends (stops key guessing)."""
+
+    max_streams_per_tenant: int = Field(default=8, ge=1)
+    """Open event streams (``GET /v1/jobs/{id}/events``) per tenant and API process; more
+    answer 429."""
+
+    max_stream_s: float = Field(default=900.0, gt=0)
+    """Longest life of one event stream; it then ends cleanly and the client reconnects with
+    ``Last-Event-ID`` (browsers' EventSource do so by themselves)."""
+
+    stream_poll_max_s: float = Field(default=5.0, gt=0)
+    """Longest pause between store polls of an idle event stream: the pause starts at
+    :attr:`poll_interval_s` and doubles while nothing happens."""
 
     max_running_jobs_per_tenant: int = Field(default=4, ge=1)
     """Unfinished (queued, running, canceling) jobs a tenant may have; more answer 429."""
@@ -77,7 +111,8 @@ class Settings(BaseSettings):
         return self
 
     rate_limit_per_minute: int = Field(default=600, ge=1)
-    """Requests per tenant per minute (per API process); more answer 429."""
+    """Requests per tenant per minute (shared by the replicas through Redis, see
+    :attr:`rate_limit_url`, else per API process); more answer 429."""
 
     retry_after_s: int = Field(default=2, ge=1)
     """``Retry-After`` sent with unfinished jobs."""
@@ -120,9 +155,18 @@ class Settings(BaseSettings):
             return self.database_url
         return f"sqlite:///{self.storage_dir.resolve() / 'dcseg.db'}"
 
+    @property
+    def effective_rate_limit_url(self) -> str | None:
+        """The Redis URL of the shared rate limiter, or None for per-process limits."""
+        url = self.rate_limit_url
+        if url is None and self.broker_url and self.broker_url.startswith(REDIS_SCHEMES):
+            url = self.broker_url
+        return None if url in (None, "", "memory") else url
+
     def parsed_api_keys(self) -> dict[str, str]:
-        """``{key: tenant}`` from :attr:`api_keys`."""
-        text = self.api_keys.strip()
+        """``{key: tenant}`` from :attr:`api_keys`; ValueError (naming the tenant, never the
+        key) for a malformed entry or a key shorter than :attr:`min_api_key_length`."""
+        text = self.api_keys.get_secret_value().strip()
         if text.startswith("@"):
             text = Path(text[1:]).read_text(encoding="utf-8")
         pairs: dict[str, str] = {}
@@ -130,10 +174,15 @@ class Settings(BaseSettings):
             item = item.strip()
             if not item or item.startswith("#"):
                 continue
-            tenant, sep, key = item.partition(":")
-            if not sep or not tenant.strip() or not key.strip():
+            tenant, sep, key = (part.strip() for part in item.partition(":"))
+            if not sep or not tenant or not key:
                 raise ValueError("DCSEG_API_KEYS entries must look like tenant:key")
-            pairs[key.strip()] = tenant.strip()
+            if len(key) < self.min_api_key_length:
+                raise ValueError(
+                    f"DCSEG_API_KEYS: the key of tenant {tenant!r} has {len(key)} characters; "
+                    f"keys need at least {self.min_api_key_length} (DCSEG_MIN_API_KEY_LENGTH)"
+                )
+            pairs[key] = tenant
         return pairs
 
 

@@ -27,9 +27,9 @@ tasks run four phases:
 
 It reports requests/s, p50/p99 latency, errors and the API processes' CPU time per request
 (``/proc/<pid>/stat``), and the job's status and its worker's CPU seconds across the phases
-(evidence that the job really ran meanwhile). The per-tenant rate limit is 10^9 requests/minute and the job cap 1000
-so that neither answers 429 during the load phases; uvicorn's access log is off. Clients, API
-and worker share the machine's cores.
+(evidence that the job really ran meanwhile). The per-tenant rate limit is 10^9 requests a
+minute and the job cap 1000 so that neither answers 429 during the load phases; uvicorn's
+access log is off. Clients, API and worker share the machine's cores.
 
 In deployed mode a last check starts a second API (same processes count, database and broker)
 with ``DCSEG_RATE_LIMIT_PER_MINUTE=--rate-limit`` and ``DCSEG_RATE_LIMIT_URL`` set to the
@@ -275,7 +275,7 @@ def uvicorn_api(
     """``processes`` uvicorn workers of ``service.main:create_app`` sharing one port."""
     command = [sys.executable, "-m", "uvicorn", "service.main:create_app", "--factory"]
     command += ["--host", "127.0.0.1", "--port", str(port), "--workers", str(processes)]
-    command += ["--log-level", "warning", "--no-access-log"]
+    command += ["--log-level", "info", "--no-access-log"]  # info: worker restarts are logged
     with launched(command, env, log) as process:
         server = Server(process, port, children=True, worker=worker)
         wait_healthy(server, log)
@@ -677,6 +677,13 @@ def print_table(result: dict[str, Any]) -> None:
         )
 
 
+def print_logs(root: Path, lines: int = 40) -> None:
+    """The end of every process log (they live in the temporary folder, removed on exit)."""
+    for log in sorted(root.glob("*.log")):
+        tail = log.read_text(encoding="utf-8", errors="replace").splitlines()[-lines:]
+        print(f"----- {log.name} (last {lines} lines)", *tail, sep="\n", file=sys.stderr)
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mode", choices=["embedded", "deployed"], default="embedded")
@@ -733,7 +740,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         root = Path(tmp)
         archive = scene_tar(root / "scene", args.frames, args.size)
         run = run_deployed if args.mode == "deployed" else run_embedded
-        measured = run(root, args, archive)
+        try:
+            measured = run(root, args, archive)
+        except Exception:
+            print_logs(root)
+            raise
     phases = measured.pop("phases")
     result = {
         "benchmark": "service",

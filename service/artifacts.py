@@ -23,7 +23,6 @@ MEDIA_TYPES = {
     ".png": "image/png",
 }
 _RANGE = re.compile(r"^bytes=(\d*)-(\d*)$", re.IGNORECASE)
-_ETAG = re.compile(r'(?:W/)?"[^"]*"')
 
 
 @dataclass(frozen=True)
@@ -115,20 +114,6 @@ def _clamped(digits: str, cap: int) -> int:
     if len(digits) > len(str(cap)):
         return cap
     return min(int(digits), cap)
-
-
-def none_match(header: str | None, etag: str) -> bool:
-    """Whether ``If-None-Match`` matches ``etag``: ``*`` matches any existing representation,
-    and tags compare weakly (``W/"x"`` matches ``"x"``; RFC 9110 13.1.2)."""
-    if header is None:
-        return False
-    if header.strip() == "*":
-        return True
-    return _opaque(etag) in {_opaque(tag) for tag in _ETAG.findall(header)}
-
-
-def _opaque(tag: str) -> str:
-    return tag.removeprefix("W/")
 
 
 def unsatisfiable(size: int) -> ApiProblem:

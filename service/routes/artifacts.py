@@ -9,6 +9,7 @@ from fastapi.responses import StreamingResponse
 
 from service import artifacts
 from service.deps import StateDep, TenantDep
+from service.jobs import etag_matches
 from service.problems import ApiProblem, problem_responses
 from service.schemas import ArtifactPublic, ArtifactsPublic
 from worker.contract import JobPaths
@@ -81,7 +82,7 @@ def download_artifact(
     (``*`` and weak tags match)."""
     found = _find(job_id, name, state, tenant)
     headers = _headers(found)
-    if artifacts.none_match(if_none_match, found.etag):
+    if etag_matches(if_none_match, found.etag):
         return Response(status_code=304, headers=headers)
     use_range = if_range is None or if_range.strip() == found.etag
     span = artifacts.parse_range(range_header, found.size) if use_range else None
@@ -116,7 +117,7 @@ def artifact_headers(
     ``Accept-Ranges``, ``Content-Type``), without a body; ``Range`` is ignored (RFC 9110 14.2)."""
     found = _find(job_id, name, state, tenant)
     headers = _headers(found)
-    if artifacts.none_match(if_none_match, found.etag):
+    if etag_matches(if_none_match, found.etag):
         return Response(status_code=304, headers=headers)
     headers["Content-Length"] = str(found.size)
     return Response(status_code=200, media_type=found.media_type, headers=headers)

@@ -126,7 +126,7 @@ def extract_and_validate(archive: Path, dest: Path, settings: Settings) -> dict[
         raise invalid_upload(error.problems, hide) from None
     hide = [(str(root.resolve()), ""), (str(root), ""), *hide]
     layout = input_layout(root)
-    report = validate_inputs(InputPaths(**layout))
+    report = validate_inputs(InputPaths(**layout), max_pixels=settings.max_validation_pixels)
     if report.problems:
         raise invalid_upload(report.problems, hide)
     found = {

@@ -152,9 +152,10 @@ def _over_pixel_budget(
         files += 1
         if total > max_pixels:
             return LimitProblem(
-                str(paths.capture),
+                str(path),
                 f"the inputs decode to more than {max_pixels:,} pixels in total (reached at "
-                f"file {files:,}, {path.name}, from the image headers); nothing was decoded",
+                f"this file, number {files:,} of those to decode, from the image headers); "
+                "nothing was decoded",
                 "max_pixels",
             )
     return None

@@ -137,6 +137,7 @@ def test_upload_pixel_budget_checked_from_headers_before_decoding(
         response = client.post("/v1/uploads", content=data, headers={**AUTH_A, **TAR})
         body = assert_problem(response, 422)
         [error] = body["errors"]
+        assert error["path"] == "rgb/frame_0002.png"  # 3 x 9 Mpx > 20 Mpx
         assert "decode to more than 20,000,000 pixels in total" in error["reason"]
         assert "nothing was decoded" in error["reason"]
         assert "setting max_validation_pixels" in error["reason"]

@@ -44,6 +44,17 @@ class Settings(BaseSettings):
     max_archive_entries: int = Field(default=100_000, ge=1)
     """Largest number of entries in an uploaded archive."""
 
+    max_archive_directory_bytes: int = Field(default=64 * 2**20, ge=1)
+    """Largest central directory of an uploaded zip (its entry count and directory size are
+    read from the end record first, so a bigger directory is refused before it is read)."""
+
+    max_archive_header_bytes: int = Field(default=2**20, ge=512)
+    """Largest pax or GNU long-name header record of one member of an uploaded tar."""
+
+    max_validation_pixels: int = Field(default=2_000_000_000, ge=1)
+    """Largest total number of pixels upload validation may decode (colour, depth, masks and
+    class maps together), summed from the image headers before anything is decoded."""
+
     api_keys: SecretStr = SecretStr("")
     """``tenant:key`` pairs separated by commas, or ``@/path/file`` with one pair per line
     (``#`` starts a comment). Secret: ``repr``/``str``/logging of the settings never show it.

@@ -119,12 +119,14 @@ def extract_and_validate(archive: Path, dest: Path, settings: Settings) -> dict[
             dest,
             max_entries=settings.max_archive_entries,
             max_total_bytes=settings.max_extracted_bytes,
+            max_directory_bytes=settings.max_archive_directory_bytes,
+            max_header_bytes=settings.max_archive_header_bytes,
         )
     except InputError as error:
         raise invalid_upload(error.problems, hide) from None
     hide = [(str(root.resolve()), ""), (str(root), ""), *hide]
     layout = input_layout(root)
-    report = validate_inputs(InputPaths(**layout))
+    report = validate_inputs(InputPaths(**layout), max_pixels=settings.max_validation_pixels)
     if report.problems:
         raise invalid_upload(report.problems, hide)
     found = {
@@ -140,8 +142,31 @@ def extract_and_validate(archive: Path, dest: Path, settings: Settings) -> dict[
     }
 
 
+_SETTING_OF_LIMIT = {
+    "max_entries": "max_archive_entries",
+    "max_total_bytes": "max_extracted_bytes",
+    "max_directory_bytes": "max_archive_directory_bytes",
+    "max_header_bytes": "max_archive_header_bytes",
+    "max_pixels": "max_validation_pixels",
+}
+"""The setting behind each limit argument of ``safe_extract`` / ``validate_inputs``."""
+
+
+def _with_setting(problem: Any, reason: str) -> str:
+    """``reason``, naming the setting when the problem is a limit that a setting sets."""
+    from dcseg.io.limits import LimitProblem
+
+    if isinstance(problem, LimitProblem) and problem.limit in _SETTING_OF_LIMIT:
+        setting = _SETTING_OF_LIMIT[problem.limit]
+        return f"{reason} (setting {setting}, environment DCSEG_{setting.upper()})"
+    return reason
+
+
 def invalid_upload(problems: Any, hide: list[tuple[str, str]]) -> ApiProblem:
-    errors = [{"path": _public(p.path, hide), "reason": _reason(p.reason, hide)} for p in problems]
+    errors = [
+        {"path": _public(p.path, hide), "reason": _with_setting(p, _reason(p.reason, hide))}
+        for p in problems
+    ]
     detail = "; ".join(f"{e['path']}: {e['reason']}" for e in errors[:5])
     if len(errors) > 5:
         detail += f"; and {len(errors) - 5} more"

@@ -469,8 +469,7 @@ def execute_job(
         except Canceled:
             return _finish(store, job_id, worker, "canceled", None)
         except Interrupted:
-            logger.info("job %s interrupted by shutdown; it resumes on the next claim", job_id)
-            return "interrupted"
+            return _interrupted(store, job_id, worker, heartbeat)
         except LeaseLost:
             if watchdog.fired is not None:  # the watchdog failed the job; its stage returned
                 return "failed"
@@ -481,6 +480,15 @@ def execute_job(
                 return "failed"
             return _finish(store, job_id, worker, "failed", error_body(error, job_id, input_root))
     return _finish(store, job_id, worker, "succeeded", None)
+
+
+def _interrupted(store: Store, job_id: str, worker: str, heartbeat: Heartbeat) -> str:
+    """Give the job up unfinished: stop the heartbeat, then expire the lease, so the next
+    delivery (or the recovery sweep) resumes it after its last finished stage at once."""
+    heartbeat.__exit__(None, None, None)  # no beat may refresh the lease after this
+    store.expire_lease(job_id, worker)
+    logger.info("job %s interrupted by shutdown; it resumes on the next claim", job_id)
+    return "interrupted"
 
 
 def _overrun(

@@ -7,7 +7,6 @@ the schema, loads API keys, sweeps unfinished jobs and (embedded mode) starts a 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import shutil
 import time
@@ -107,6 +106,15 @@ async def recover_lost_jobs(
             logger.exception("recovery sweep failed; retrying")
 
 
+async def stop_recovery(recovery: asyncio.Task[None], grace_s: float) -> None:
+    """Cancel the recovery sweep; a pass blocked in the database is waited for ``grace_s`` at
+    most (its thread cannot be interrupted), so shutdown stays bounded."""
+    recovery.cancel()
+    done, _ = await asyncio.wait({recovery}, timeout=grace_s)
+    if not done:
+        logger.warning("recovery sweep still busy after %g s; shutting down anyway", grace_s)
+
+
 ABANDONED_UPLOAD_S = 24 * 3600.0
 """Temporary upload folders older than this were left by a crashed request; removed at start."""
 
@@ -165,11 +173,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
-            recovery.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await recovery
+            await stop_recovery(recovery, current.shutdown_grace_s)
             if local is not None:
-                local.stop()
+                local.stop()  # bounded by shutdown_grace_s: the child is killed after it
             state.store.close()
 
     app = FastAPI(

@@ -153,8 +153,30 @@ class Settings(BaseSettings):
     task_time_limit_s: int = Field(default=6 * 3600 + 300, ge=1)
     """Celery hard time limit of one job (the worker child is killed; prefork pool only)."""
 
-    stage_time_limit_s: dict[str, float] = {"validate": 900.0, "reconstruct": 5 * 3600.0}
-    """Per-stage limit, checked between iterations; a stage over it fails the job."""
+    stage_time_limit_s: dict[str, float] = {
+        "validate": 900.0,
+        "reconstruct": 5 * 3600.0,
+        "train": 3 * 3600.0,
+        "segment": 3600.0,
+    }
+    """Per-stage limit in seconds (JSON object, stage name -> seconds); a stage over it fails
+    the job. Checked at each progress report; a stage that reports none is stopped
+    ``stage_kill_grace_s`` after its limit."""
+
+    stage_time_limit_default_s: float = Field(default=3600.0, gt=0)
+    """Limit of a stage that ``stage_time_limit_s`` does not name."""
+
+    stage_kill_grace_s: float = Field(default=60.0, gt=0)
+    """How long a stage may run past its limit without reaching a progress report before it
+    is stopped by force: the job fails, and the worker process is killed where that is safe
+    (embedded ``process`` mode, Celery prefork pool child) or the stage is abandoned (thread
+    mode, Celery ``solo``/``threads`` pools)."""
+
+    shutdown_grace_s: float = Field(default=8.0, gt=0)
+    """How long the API's shutdown (embedded mode) waits for the embedded worker's job to
+    reach a progress report and stop (it stays unfinished and resumes from its last finished
+    stage at the next start) before the worker process is killed. Kept below Docker's default
+    10 s stop timeout."""
 
     device: str = "auto"
     """Worker device: ``auto`` (CUDA when available), ``cpu``, ``cuda``, ``cuda:1``..."""

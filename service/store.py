@@ -450,6 +450,14 @@ class Store:
             job.heartbeat_at = self._now(s)
             return "cancel" if job.cancel_requested else "ok"
 
+    def expire_lease(self, job_id: str, worker: str) -> None:
+        """``worker`` gives the job up unfinished (shutdown): its lease is made stale at once,
+        so the next delivery, or the recovery sweep, resumes the job without waiting."""
+        with self.session() as s:
+            job = self._owned(s, job_id, worker)
+            if job is not None:
+                job.heartbeat_at = self._now(s) - timedelta(days=1)  # stale for any heartbeat_s
+
     def report_progress(
         self,
         job_id: str,

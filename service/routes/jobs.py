@@ -9,6 +9,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, Query, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import IntegrityError
 
 from service.deps import AppState, StateDep, TenantDep
 from service.jobs import (
@@ -86,7 +87,15 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
         event_seq=0,
         message="queued",
     )
-    return state.store.create_job(job)
+    try:
+        return state.store.create_job(job)
+    except IntegrityError:
+        if state.store.get_upload(upload_id, tenant) is not None:
+            raise
+        # deleted (or expired) since the check above: the job's foreign key refused it
+        raise ApiProblem(
+            404, f"no upload {upload_id!r} (it was deleted)", slug="not-found"
+        ) from None
 
 
 def _submit(state: AppState, tenant: str, body: JobCreate) -> JSONResponse:

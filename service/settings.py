@@ -45,15 +45,15 @@ class Settings(BaseSettings):
     """Uploads one API process handles at once (receiving, waiting or validating); more
     answer 503 with ``Retry-After`` before their body is read."""
 
-    tenant_storage_quota_bytes: int | None = Field(default=100 * GIB, ge=1)
+    tenant_storage_quota_bytes: int = Field(default=100 * GIB, ge=0)
     """Storage per tenant: extracted uploads plus job outputs; an upload that would exceed it
-    answers 507. None = no quota."""
+    answers 507. 0 = no quota."""
 
     min_free_bytes: int = Field(default=GIB, ge=0)
     """Free space the storage volume must keep; an upload that would leave less answers 507."""
 
-    upload_expiry_s: float | None = Field(default=7 * 24 * 3600.0, gt=0)
-    """An upload no job refers to is deleted this long after it was created. None = never."""
+    upload_expiry_s: float = Field(default=7 * 24 * 3600.0, ge=0)
+    """An upload no job refers to is deleted this long after it was created. 0 = never."""
 
     idempotency_ttl_s: float = Field(default=24 * 3600.0, gt=0)
     """How long an ``Idempotency-Key`` is remembered; an older record is ignored and swept."""

@@ -109,7 +109,7 @@ def test_upload_beyond_the_tenant_quota_answers_507(make_client, scene_tar):
     assert _upload(client, scene_tar).status_code == 201
     body = assert_problem(_upload(client, scene_tar), 507)
     assert body["type"].endswith("storage-quota-exceeded")
-    assert body["quota"] == int(len(scene_tar) * 1.5) and body["used"] >= len(scene_tar)
+    assert body["quota"] == int(len(scene_tar) * 1.5) and 0 < body["used"] <= len(scene_tar)
     with state_of(client).store.session() as s:
         assert s.scalar(select(func.count()).select_from(Upload)) == 1
     assert len(list((state_of(client).settings.storage_dir / "uploads").iterdir())) == 1
@@ -157,10 +157,9 @@ def test_unused_uploads_expire_and_uploads_of_jobs_stay(make_client, scene_tar):
     _backdate_uploads(client, days=2)
     with state_of(client).store.session() as s:
         s.execute(update(Upload).where(Upload.id == fresh).values(created_at=utcnow()))
-    gone = f"/v1/uploads/{unused}"
-    wait_for(lambda: client.get(gone, headers=AUTH_A).status_code == 404, timeout=BOUND_S)
     storage = state_of(client).settings.storage_dir / "uploads"
-    assert not (storage / unused).exists()
+    wait_for(lambda: not (storage / unused).exists(), timeout=BOUND_S)  # row first, then files
+    assert_problem(client.get(f"/v1/uploads/{unused}", headers=AUTH_A), 404)
     for kept in (used, fresh):
         assert client.get(f"/v1/uploads/{kept}", headers=AUTH_A).status_code == 200
         assert (storage / kept).is_dir()
@@ -303,3 +302,53 @@ def test_upload_deleted_while_a_job_is_created_answers_404_not_500(client, uploa
         assert s.scalar(select(func.count()).select_from(IdempotencyKey)) == 0
     assert client.get(f"/v1/uploads/{upload_id}", headers=AUTH_A).status_code == 404
 
+
+def test_schema_v1_gains_uploads_stored_bytes(tmp_path):
+    """The quota's per-upload byte count is a new column: a v1 store migrates to v2 and its
+    old uploads count their archive size."""
+    from sqlalchemy import delete, insert, inspect
+
+    from service.models import SCHEMA_VERSION, SchemaVersion
+    from service.store import Store
+
+    store = Store(f"sqlite:///{tmp_path / 'v1.db'}")
+    store.init_schema()
+    with store.engine.begin() as conn:
+        conn.exec_driver_sql("ALTER TABLE uploads DROP COLUMN stored_bytes")
+        conn.execute(delete(SchemaVersion))
+        conn.execute(insert(SchemaVersion).values(version=1))
+        conn.exec_driver_sql("INSERT INTO tenants (id, created_at) VALUES ('t', '2026-01-01')")
+        conn.exec_driver_sql(
+            "INSERT INTO uploads (id, tenant_id, sha256, size, content_type, summary, "
+            "created_at) VALUES ('u', 't', '', 123, 'application/x-tar', '{}', '2026-01-01')"
+        )
+    assert store.init_schema() == SCHEMA_VERSION == 2
+    columns = {c["name"] for c in inspect(store.engine).get_columns("uploads")}
+    assert "stored_bytes" in columns
+    assert store.tenant_storage("t") == (123, [])
+    store.close()
+
+
+def test_full_disk_is_recognised_behind_wrapping_errors():
+    """ENOSPC/EDQUOT and SQLite's "database or disk is full" count as a full disk, also when
+    wrapped (safe_extract's InputError, SQLAlchemy's OperationalError); other errors do not."""
+    import sqlite3
+
+    from sqlalchemy.exc import OperationalError
+
+    def wrapped(inner: BaseException) -> BaseException:
+        try:
+            try:
+                raise inner
+            except OSError:
+                raise ValueError("corrupt or unreadable archive") from None
+        except ValueError as outer:
+            return outer
+
+    assert service_uploads.is_disk_full(wrapped(OSError(errno.ENOSPC, "full")))
+    assert service_uploads.is_disk_full(OSError(errno.EDQUOT, "quota"))
+    assert not service_uploads.is_disk_full(wrapped(OSError(errno.EIO, "io")))
+    full = sqlite3.OperationalError("database or disk is full")
+    full.sqlite_errorcode = sqlite3.SQLITE_FULL
+    assert service_uploads.is_disk_full(OperationalError("INSERT", {}, full))
+    assert not service_uploads.is_disk_full(OperationalError("INSERT", {}, ValueError("x")))

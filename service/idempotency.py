@@ -9,12 +9,14 @@ request that fails forgets the key so the client may retry. Records expire after
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager, contextmanager
 from datetime import timedelta
 from typing import Annotated, Any
 
+import anyio
 from fastapi import Header
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from service.deps import AppState
@@ -73,11 +75,21 @@ def _begin(state: AppState, tenant: str, key: str, request_hash: str) -> Idempot
     return IdempotentRequest()
 
 
+def _settle(state: AppState, tenant: str, key: str, request: IdempotentRequest) -> None:
+    """After the request ran: store the kept response, or forget the key (nothing kept)."""
+    if request.kept is None:
+        state.store.idempotency_release(tenant, key)
+    else:
+        kept = request.kept
+        state.store.idempotency_finish(tenant, key, kept.status_code, _stored(kept))
+
+
 @contextmanager
 def idempotent(
     state: AppState, tenant: str, key: str | None, request_hash: str
 ) -> Iterator[IdempotentRequest]:
     """Run a POST under ``key``: answer ``replay`` when set, else ``keep`` the response.
+    For sync routes (the store is called on the current thread).
 
     Example::
 
@@ -98,8 +110,27 @@ def idempotent(
     except BaseException:
         state.store.idempotency_release(tenant, key)
         raise
-    if request.kept is None:
-        state.store.idempotency_release(tenant, key)
-    else:
-        kept = request.kept
-        state.store.idempotency_finish(tenant, key, kept.status_code, _stored(kept))
+    _settle(state, tenant, key, request)
+
+
+@asynccontextmanager
+async def idempotent_async(
+    state: AppState, tenant: str, key: str | None, request_hash: str
+) -> AsyncIterator[IdempotentRequest]:
+    """:func:`idempotent` for async routes: the store is called on a worker thread, never on
+    the event loop."""
+    if key is None:
+        yield IdempotentRequest()
+        return
+    request = await run_in_threadpool(_begin, state, tenant, key, request_hash)
+    if request.replay is not None:
+        yield request
+        return
+    try:
+        yield request
+    except BaseException:
+        with anyio.CancelScope(shield=True):  # also when the client went away
+            await run_in_threadpool(state.store.idempotency_release, tenant, key)
+        raise
+    with anyio.CancelScope(shield=True):
+        await run_in_threadpool(_settle, state, tenant, key, request)

@@ -14,7 +14,7 @@ from fastapi.responses import JSONResponse
 
 from service import uploads
 from service.deps import AppState, StateDep, TenantDep
-from service.idempotency import IdempotencyKeyHeader, idempotent
+from service.idempotency import IdempotencyKeyHeader, idempotent_async
 from service.models import Upload
 from service.problems import ApiProblem, problem_responses
 from service.schemas import UploadLinks, UploadPublic
@@ -115,7 +115,7 @@ async def _accept(
     """Receive, then (unless ``key`` replays an earlier upload) validate and keep it."""
     size, digest = await _receive(request, state, incoming)
     request_hash = uploads.upload_request_hash(incoming.content_type, digest)
-    with idempotent(state, tenant, key, request_hash) as idem:
+    async with idempotent_async(state, tenant, key, request_hash) as idem:
         if idem.replay is not None:
             return idem.replay
         record = Upload(

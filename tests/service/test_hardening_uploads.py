@@ -238,6 +238,23 @@ def test_upload_honours_idempotency_key(client, scene_tar, scene):
     assert [p.name for p in uploads_dir.iterdir()] == [first.json()["id"]]
 
 
+def test_upload_with_a_key_in_flight_answers_409(client, scene_tar, monkeypatch):
+    """Defect: uploads honour Idempotency-Key as jobs do: the same key while the first
+    request is still validating answers 409, and the first one still succeeds."""
+    gate = _Gate()
+    monkeypatch.setattr(service_uploads, "extract_and_validate", gate)
+    key = {"Idempotency-Key": "slow"}
+    with ThreadPoolExecutor(1) as pool:
+        first = pool.submit(_upload, client, scene_tar, **key)
+        try:
+            wait_for(lambda: gate.entered == 1, timeout=BOUND_S)
+            second = _upload(client, scene_tar, **key)
+        finally:
+            gate.release.set()
+        assert first.result(timeout=BOUND_S).status_code == 201
+    assert assert_problem(second, 409)["type"].endswith("idempotency-in-flight")
+
+
 def test_idempotency_keys_older_than_the_ttl_are_ignored_and_swept(make_client, scene_tar):
     """Defect: "Idempotency records never expire"; past the TTL a key is new again and the
     periodic sweep deletes the record."""

@@ -26,6 +26,7 @@ from service.queue import JobQueue, make_queue
 from service.routes import artifacts, events, health, jobs, uploads
 from service.settings import Settings, get_settings
 from service.store import Store
+from service.uploads import remove_expired_uploads
 
 if TYPE_CHECKING:
     from worker.local import EmbeddedWorker
@@ -129,6 +130,22 @@ def remove_abandoned_uploads(storage: Path) -> None:
             shutil.rmtree(folder, ignore_errors=True)
 
 
+def housekeep_once(store: Store, settings: Settings) -> None:
+    """Delete expired uploads and idempotency records (blocking)."""
+    remove_expired_uploads(store, settings)
+    store.idempotency_sweep(timedelta(seconds=settings.idempotency_ttl_s))
+
+
+async def housekeep(store: Store, settings: Settings) -> None:
+    """Forever, every ``housekeeping_interval_s``: :func:`housekeep_once`."""
+    while True:
+        await asyncio.sleep(settings.housekeeping_interval_s)
+        try:
+            await run_in_threadpool(housekeep_once, store, settings)
+        except Exception:
+            logger.exception("housekeeping failed; retrying")
+
+
 def open_state(settings: Settings) -> AppState:
     """Open the store (creating or checking the schema), load keys, build the queue."""
     settings.storage_dir.mkdir(parents=True, exist_ok=True)
@@ -170,9 +187,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         recovery = asyncio.create_task(
             recover_lost_jobs(state.store, state.queue, current, local, resend=not swept)
         )
+        housekeeping = asyncio.create_task(housekeep(state.store, current))
         try:
             yield
         finally:
+            housekeeping.cancel()
             await stop_recovery(recovery, current.shutdown_grace_s)
             if local is not None:
                 local.stop()  # bounded by shutdown_grace_s: the child is killed after it

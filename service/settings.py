@@ -38,6 +38,30 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(default=2 * GIB, ge=1)
     """Largest accepted upload body; larger bodies answer 413."""
 
+    max_upload_validations: int = Field(default=2, ge=1)
+    """Uploads extracted and validated at the same time, on threads of their own (never the
+    threadpool that serves the other routes); further admitted uploads wait their turn."""
+
+    max_pending_uploads: int = Field(default=16, ge=1)
+    """Uploads one API process handles at once (receiving, waiting or validating); more
+    answer 503 with ``Retry-After`` before their body is read."""
+
+    tenant_storage_quota_bytes: int = Field(default=100 * GIB, ge=0)
+    """Storage per tenant: extracted uploads plus job outputs; an upload that would exceed it
+    answers 507. 0 = no quota."""
+
+    min_free_bytes: int = Field(default=GIB, ge=0)
+    """Free space the storage volume must keep; an upload that would leave less answers 507."""
+
+    upload_expiry_s: float = Field(default=7 * 24 * 3600.0, ge=0)
+    """An upload no job refers to is deleted this long after it was created. 0 = never."""
+
+    idempotency_ttl_s: float = Field(default=24 * 3600.0, gt=0)
+    """How long an ``Idempotency-Key`` is remembered; an older record is ignored and swept."""
+
+    housekeeping_interval_s: float = Field(default=600.0, gt=0)
+    """How often the API deletes expired uploads and idempotency records."""
+
     max_extracted_bytes: int = Field(default=8 * GIB, ge=1)
     """Largest total size an uploaded archive may expand to."""
 

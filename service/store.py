@@ -44,7 +44,13 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-MIGRATIONS: dict[int, Callable[[Connection], None]] = {}
+
+def _add_upload_stored_bytes(conn: Connection) -> None:
+    """v2: ``uploads.stored_bytes`` (bytes of the extracted upload; NULL = use ``size``)."""
+    conn.exec_driver_sql("ALTER TABLE uploads ADD COLUMN stored_bytes BIGINT")
+
+
+MIGRATIONS: dict[int, Callable[[Connection], None]] = {2: _add_upload_stored_bytes}
 """``MIGRATIONS[v]`` upgrades a version ``v - 1`` schema to version ``v``."""
 
 IDEMPOTENCY_ABANDONED = timedelta(minutes=2)
@@ -247,17 +253,35 @@ class Store:
             upload = s.get(Upload, upload_id)
         return upload if upload is not None and upload.tenant_id == tenant else None
 
-    def delete_upload(self, upload_id: str, tenant: str) -> Upload | None:
-        """Delete an upload record; ``UploadInUse`` while jobs refer to it."""
+    def delete_upload(self, upload_id: str, tenant: str | None) -> Upload | None:
+        """Delete an upload record (of ``tenant``, or of anyone when None); ``UploadInUse``
+        while jobs refer to it. The row lock and the job's foreign key order this against a
+        job being created for it: one of the two fails cleanly."""
         with self.session() as s:
             upload = s.get(Upload, upload_id, with_for_update=True)
-            if upload is None or upload.tenant_id != tenant:
+            if upload is None or (tenant is not None and upload.tenant_id != tenant):
                 return None
             jobs = s.scalar(select(func.count()).where(Job.upload_id == upload_id)) or 0
             if jobs:
                 raise UploadInUse(f"{jobs} job(s) use this upload; delete them first")
             s.delete(upload)
         return upload
+
+    def unused_uploads(self, created_before: datetime) -> list[str]:
+        """Ids of uploads created before ``created_before`` that no job refers to."""
+        used = select(Job.id).where(Job.upload_id == Upload.id).exists()
+        query = select(Upload.id).where(Upload.created_at < created_before, ~used)
+        with self.session() as s:
+            return list(s.scalars(query.order_by(Upload.created_at)))
+
+    def tenant_storage(self, tenant: str) -> tuple[int, list[str]]:
+        """The bytes of the tenant's stored uploads and the ids of its jobs (their outputs are
+        measured from their manifests)."""
+        stored = func.coalesce(Upload.stored_bytes, Upload.size)
+        with self.session() as s:
+            used = s.scalar(select(func.sum(stored)).where(Upload.tenant_id == tenant)) or 0
+            jobs = list(s.scalars(select(Job.id).where(Job.tenant_id == tenant)))
+        return int(used), jobs
 
     # ----- jobs: API side -----
     def create_job(self, job: Job, *, max_active: int | None = None) -> Job:
@@ -352,8 +376,13 @@ class Store:
             return list(s.scalars(query))
 
     # ----- idempotency -----
-    def idempotency_begin(self, tenant: str, key: str, request_hash: str) -> IdempotencyOutcome:
-        """Reserve ``key`` for this request, or say how to answer a repeated one."""
+    def idempotency_begin(
+        self, tenant: str, key: str, request_hash: str, ttl: timedelta | None = None
+    ) -> IdempotencyOutcome:
+        """Reserve ``key`` for this request, or say how to answer a repeated one.
+
+        A record older than ``ttl`` is forgotten: the key counts as new.
+        """
         try:
             with self.session() as s:
                 s.add(IdempotencyKey(tenant_id=tenant, key=key, request_hash=request_hash))
@@ -364,6 +393,10 @@ class Store:
             row = s.get(IdempotencyKey, (tenant, key), with_for_update=True)
             if row is None:  # released in between: try again once
                 s.add(IdempotencyKey(tenant_id=tenant, key=key, request_hash=request_hash))
+                return IdempotencyOutcome("new")
+            if ttl is not None and utcnow() - row.created_at >= ttl:
+                row.request_hash, row.status_code, row.response = request_hash, None, None
+                row.created_at = utcnow()
                 return IdempotencyOutcome("new")
             if row.request_hash != request_hash:
                 return IdempotencyOutcome("mismatch")
@@ -389,6 +422,15 @@ class Store:
             row = s.get(IdempotencyKey, (tenant, key))
             if row is not None and row.status_code is None:
                 s.delete(row)
+
+    def idempotency_sweep(self, older_than: timedelta) -> int:
+        """Delete idempotency records older than ``older_than``; returns how many."""
+        cutoff = utcnow() - older_than
+        with self.session() as s:
+            rows = list(s.scalars(select(IdempotencyKey).where(IdempotencyKey.created_at < cutoff)))
+            for row in rows:
+                s.delete(row)
+        return len(rows)
 
     # ----- jobs: worker side -----
     def claim_job(self, job_id: str, worker: str, stale_after: timedelta) -> Job | None:

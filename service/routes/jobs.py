@@ -9,10 +9,12 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, Query, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import IntegrityError
 
 from dcseg.errors import InputError
 from dcseg.options import build_config, check_size
 from service.deps import AppState, StateDep, TenantDep
+from service.idempotency import IdempotencyKeyHeader, idempotent
 from service.jobs import (
     decode_page_token,
     encode_page_token,
@@ -31,15 +33,6 @@ from worker.contract import TERMINAL, JobPaths
 logger = logging.getLogger(__name__)
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
-
-IdempotencyKey = Annotated[
-    str | None,
-    Header(
-        alias="Idempotency-Key",
-        max_length=255,
-        description="Same key + same body replays the first response (per tenant).",
-    ),
-]
 
 
 def _not_found(job_id: str) -> ApiProblem:
@@ -93,6 +86,13 @@ def _insert_capped(state: AppState, job: Job) -> Job:
         raise ApiProblem(
             429, str(full), slug="too-many-jobs", headers={"Retry-After": "30"}
         ) from None
+    except IntegrityError:
+        if state.store.get_upload(job.upload_id, job.tenant_id) is not None:
+            raise
+        # deleted (or expired) since the check in _new_job: the job's foreign key refused it
+        raise ApiProblem(
+            404, f"no upload {job.upload_id!r} (it was deleted)", slug="not-found"
+        ) from None
 
 
 def check_options(body: JobCreate, summary: dict[str, Any]) -> None:
@@ -136,11 +136,6 @@ def _submit(state: AppState, tenant: str, body: JobCreate) -> JSONResponse:
     return response
 
 
-def _replay(status_code: int, stored: dict[str, Any]) -> JSONResponse:
-    headers = {**stored["headers"], "Idempotent-Replayed": "true"}
-    return JSONResponse(stored["body"], status_code=status_code, headers=headers)
-
-
 @router.post(
     "",
     status_code=202,
@@ -148,43 +143,17 @@ def _replay(status_code: int, stored: dict[str, Any]) -> JSONResponse:
     responses=problem_responses(400, 401, 404, 409, 422, 429, 503),
 )
 def create_job(
-    body: JobCreate, state: StateDep, tenant: TenantDep, idempotency_key: IdempotencyKey = None
+    body: JobCreate,
+    state: StateDep,
+    tenant: TenantDep,
+    idempotency_key: IdempotencyKeyHeader = None,
 ) -> Response:
     """Queue a pipeline run; poll the job at ``Location`` (or stream its events)."""
-    if idempotency_key is None:
-        return _submit(state, tenant, body)
     digest = request_hash(body.model_dump(mode="json"))
-    outcome = state.store.idempotency_begin(tenant, idempotency_key, digest)
-    if outcome.kind == "mismatch":
-        raise ApiProblem(
-            422, "Idempotency-Key was used with a different body", slug="idempotency-mismatch"
-        )
-    if outcome.kind == "in_flight":
-        raise ApiProblem(
-            409, "a request with this Idempotency-Key is in progress", slug="idempotency-in-flight"
-        )
-    if outcome.kind == "replay":
-        assert outcome.status_code is not None and outcome.response is not None
-        return _replay(outcome.status_code, outcome.response)
-    try:
-        response = _submit(state, tenant, body)
-    except BaseException:
-        state.store.idempotency_release(tenant, idempotency_key)
-        raise
-    stored = {"body": _json_body(response), "headers": _replay_headers(response)}
-    state.store.idempotency_finish(tenant, idempotency_key, response.status_code, stored)
-    return response
-
-
-def _json_body(response: JSONResponse) -> Any:
-    import json
-
-    return json.loads(bytes(response.body))
-
-
-def _replay_headers(response: Response) -> dict[str, str]:
-    keep = ("location", "operation-location", "etag")
-    return {k: v for k, v in response.headers.items() if k in keep}
+    with idempotent(state, tenant, idempotency_key, digest) as request:
+        if request.replay is not None:
+            return request.replay
+        return request.keep(_submit(state, tenant, body))
 
 
 @router.get("", response_model=JobsPublic, responses=problem_responses(400, 401, 422))

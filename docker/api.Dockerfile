@@ -28,5 +28,8 @@ VOLUME ["/data"]
 EXPOSE 8000
 HEALTHCHECK --interval=30s --timeout=5s --start-period=20s --retries=3 \
     CMD ["python", "-c", "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=4)"]
-# One process: the rate limiter is per process; scale with replicas behind a proxy.
-CMD ["uvicorn", "service.main:app", "--host", "0.0.0.0", "--port", "8000", "--proxy-headers"]
+# One process per container; scale with replicas behind a proxy (rate limits are shared through
+# Redis: DCSEG_RATE_LIMIT_URL, by default a redis:// DCSEG_BROKER_URL). `dcseg serve` refuses to
+# bind 0.0.0.0 without DCSEG_API_KEYS (unless DCSEG_ALLOW_UNAUTHENTICATED=true) and, like
+# uvicorn --proxy-headers, trusts X-Forwarded-For from FORWARDED_ALLOW_IPS (default 127.0.0.1).
+CMD ["dcseg", "serve", "--host", "0.0.0.0", "--port", "8000"]

@@ -22,7 +22,7 @@ MEDIA_TYPES = {
     ".txt": "text/plain",
     ".png": "image/png",
 }
-_RANGE = re.compile(r"^bytes=(\d*)-(\d*)$")
+_RANGE = re.compile(r"^bytes=(\d*)-(\d*)$", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -70,29 +70,50 @@ def find_artifact(output: Path, name: str) -> Artifact | None:
 def parse_range(header: str | None, size: int) -> tuple[int, int] | None:
     """``(start, end)`` inclusive for a single satisfiable byte range; None = whole file.
 
-    Several ranges or another unit are ignored (whole file, as RFC 9110 allows); a syntactically
-    valid but unsatisfiable range answers 416.
+    The unit ``bytes`` is case-insensitive (RFC 9110 14.1). Several ranges, another unit or an
+    invalid range (last before first) are ignored (whole file, as RFC 9110 allows); a valid but
+    unsatisfiable range answers 416. Positions are compared as digit strings, never converted
+    unbounded, so a number of any length is handled (beyond the file it is clamped).
     """
     if header is None:
         return None
     match = _RANGE.match(header.strip().replace(" ", ""))
     if match is None:
         return None
-    first, last = match.groups()
-    if not first and not last:
+    first, last = (_digits(group) for group in match.groups())
+    if first is None and last is None:
         return None
-    if not first:
-        length = int(last)
+    if first is None:
+        length = _clamped(last or "0", size)
         if length == 0 or size == 0:
             raise unsatisfiable(size)
-        return max(0, size - length), size - 1
-    start = int(first)
-    end = min(int(last), size - 1) if last else size - 1
-    if last and int(last) < start:
+        return size - length, size - 1
+    if last is not None and _less(last, first):
         return None
+    start = _clamped(first, size)
     if start >= size:
         raise unsatisfiable(size)
+    end = size - 1 if last is None else min(_clamped(last, size), size - 1)
     return start, end
+
+
+def _digits(text: str) -> str | None:
+    """A position without leading zeros (``"0"`` for zero); None when absent."""
+    if not text:
+        return None
+    return text.lstrip("0") or "0"
+
+
+def _less(a: str, b: str) -> bool:
+    """``int(a) < int(b)`` for digit strings without leading zeros, of any length."""
+    return (len(a), a) < (len(b), b)
+
+
+def _clamped(digits: str, cap: int) -> int:
+    """``min(int(digits), cap)`` without converting more digits than ``cap`` has."""
+    if len(digits) > len(str(cap)):
+        return cap
+    return min(int(digits), cap)
 
 
 def unsatisfiable(size: int) -> ApiProblem:

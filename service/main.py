@@ -7,7 +7,6 @@ the schema, loads API keys, sweeps unfinished jobs and (embedded mode) starts a 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import shutil
 import time
@@ -22,11 +21,12 @@ from fastapi.concurrency import run_in_threadpool
 
 from dcseg import __version__
 from service import problems
-from service.deps import LOCAL_TENANT, AppState, RateLimiter
+from service.deps import LOCAL_TENANT, AppState, make_limiter
 from service.queue import JobQueue, make_queue
 from service.routes import artifacts, events, health, jobs, uploads
 from service.settings import Settings, get_settings
 from service.store import Store
+from service.uploads import remove_expired_uploads
 
 if TYPE_CHECKING:
     from worker.local import EmbeddedWorker
@@ -107,6 +107,15 @@ async def recover_lost_jobs(
             logger.exception("recovery sweep failed; retrying")
 
 
+async def stop_recovery(recovery: asyncio.Task[None], grace_s: float) -> None:
+    """Cancel the recovery sweep; a pass blocked in the database is waited for ``grace_s`` at
+    most (its thread cannot be interrupted), so shutdown stays bounded."""
+    recovery.cancel()
+    done, _ = await asyncio.wait({recovery}, timeout=grace_s)
+    if not done:
+        logger.warning("recovery sweep still busy after %g s; shutting down anyway", grace_s)
+
+
 ABANDONED_UPLOAD_S = 24 * 3600.0
 """Temporary upload folders older than this were left by a crashed request; removed at start."""
 
@@ -121,24 +130,42 @@ def remove_abandoned_uploads(storage: Path) -> None:
             shutil.rmtree(folder, ignore_errors=True)
 
 
+def housekeep_once(store: Store, settings: Settings) -> None:
+    """Delete expired uploads and idempotency records (blocking)."""
+    remove_expired_uploads(store, settings)
+    store.idempotency_sweep(timedelta(seconds=settings.idempotency_ttl_s))
+
+
+async def housekeep(store: Store, settings: Settings) -> None:
+    """Forever, every ``housekeeping_interval_s``: :func:`housekeep_once`."""
+    while True:
+        await asyncio.sleep(settings.housekeeping_interval_s)
+        try:
+            await run_in_threadpool(housekeep_once, store, settings)
+        except Exception:
+            logger.exception("housekeeping failed; retrying")
+
+
 def open_state(settings: Settings) -> AppState:
     """Open the store (creating or checking the schema), load keys, build the queue."""
     settings.storage_dir.mkdir(parents=True, exist_ok=True)
     remove_abandoned_uploads(settings.storage_dir)
-    store = Store(settings.db_url)
+    store = Store.from_settings(settings)
     store.init_schema()
     keys = settings.parsed_api_keys()
     key_hashes = store.sync_api_keys(keys)
     if not keys:
         store.ensure_tenant(LOCAL_TENANT)
-        logger.warning("no API keys configured: authentication is off (tenant %r)", LOCAL_TENANT)
+        reach = "every client" if settings.allow_unauthenticated else "loopback clients only"
+        logger.warning("no API keys: authentication is off (tenant %r, %s)", LOCAL_TENANT, reach)
     queue = make_queue(settings)
     return AppState(
         settings=settings,
         store=store,
         queue=queue,
         key_hashes=key_hashes,
-        limiter=RateLimiter(settings.rate_limit_per_minute),
+        limiter=make_limiter(settings, "requests", settings.rate_limit_per_minute),
+        auth_limiter=make_limiter(settings, "failed-auth", settings.failed_auth_per_minute),
     )
 
 
@@ -160,14 +187,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         recovery = asyncio.create_task(
             recover_lost_jobs(state.store, state.queue, current, local, resend=not swept)
         )
+        housekeeping = asyncio.create_task(housekeep(state.store, current))
         try:
             yield
         finally:
-            recovery.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await recovery
+            housekeeping.cancel()
+            await stop_recovery(recovery, current.shutdown_grace_s)
             if local is not None:
-                local.stop()
+                local.stop()  # bounded by shutdown_grace_s: the child is killed after it
             state.store.close()
 
     app = FastAPI(

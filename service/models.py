@@ -25,7 +25,7 @@ from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.types import TypeDecorator
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 """Version of the tables below; recorded in ``schema_version`` and checked at startup."""
 
 
@@ -87,6 +87,9 @@ class Upload(Base):
     size: Mapped[int] = mapped_column(BigInteger)
     content_type: Mapped[str] = mapped_column(String(100))
     summary: Mapped[dict[str, Any]]
+    stored_bytes: Mapped[int | None] = mapped_column(BigInteger, default=None)
+    """Bytes of the extracted upload on disk (counted against the tenant's quota); None on
+    uploads made before schema v2, which count their ``size``."""
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 

@@ -9,10 +9,11 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 GIB = 2**30
+REDIS_SCHEMES = ("redis://", "rediss://")
 
 
 class Settings(BaseSettings):
@@ -37,22 +38,116 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(default=2 * GIB, ge=1)
     """Largest accepted upload body; larger bodies answer 413."""
 
+    max_upload_validations: int = Field(default=2, ge=1)
+    """Uploads extracted and validated at the same time, on threads of their own (never the
+    threadpool that serves the other routes); further admitted uploads wait their turn."""
+
+    max_pending_uploads: int = Field(default=16, ge=1)
+    """Uploads one API process handles at once (receiving, waiting or validating); more
+    answer 503 with ``Retry-After`` before their body is read."""
+
+    tenant_storage_quota_bytes: int = Field(default=100 * GIB, ge=0)
+    """Storage per tenant: extracted uploads plus job outputs; an upload that would exceed it
+    answers 507. 0 = no quota."""
+
+    min_free_bytes: int = Field(default=GIB, ge=0)
+    """Free space the storage volume must keep; an upload that would leave less answers 507."""
+
+    upload_expiry_s: float = Field(default=7 * 24 * 3600.0, ge=0)
+    """An upload no job refers to is deleted this long after it was created. 0 = never."""
+
+    idempotency_ttl_s: float = Field(default=24 * 3600.0, gt=0)
+    """How long an ``Idempotency-Key`` is remembered; an older record is ignored and swept."""
+
+    housekeeping_interval_s: float = Field(default=600.0, gt=0)
+    """How often the API deletes expired uploads and idempotency records."""
+
     max_extracted_bytes: int = Field(default=8 * GIB, ge=1)
     """Largest total size an uploaded archive may expand to."""
 
     max_archive_entries: int = Field(default=100_000, ge=1)
     """Largest number of entries in an uploaded archive."""
 
-    api_keys: str = ""
-    """``tenant:key`` pairs separated by commas, or ``@/path/file`` with one pair per line.
-    Empty = no authentication, every request belongs to tenant ``local`` (``dcseg serve``
-    refuses this unless it binds to a loopback address)."""
+    max_archive_directory_bytes: int = Field(default=64 * 2**20, ge=1)
+    """Largest central directory of an uploaded zip (its entry count and directory size are
+    read from the end record first, so a bigger directory is refused before it is read)."""
+
+    max_archive_header_bytes: int = Field(default=2**20, ge=512)
+    """Largest pax or GNU long-name header record of one member of an uploaded tar."""
+
+    max_validation_pixels: int = Field(default=2_000_000_000, ge=1)
+    """Largest total number of pixels upload validation may decode (colour, depth, masks and
+    class maps together), summed from the image headers before anything is decoded."""
+
+    api_keys: SecretStr = SecretStr("")
+    """``tenant:key`` pairs separated by commas, or ``@/path/file`` with one pair per line
+    (``#`` starts a comment). Secret: ``repr``/``str``/logging of the settings never show it.
+    No pairs (empty, or a file of comments) = no authentication: every request belongs to
+    tenant ``local`` and, unless :attr:`allow_unauthenticated`, only loopback is served."""
+
+    allow_unauthenticated: bool = False
+    """With no API keys: False (default) serves only loopback clients that name the server by
+    a loopback ``Host`` (``localhost``, ``127.0.0.0/8``, ``[::1]``; others answer 403/421, which
+    stops DNS rebinding) and ``dcseg serve`` refuses a non-loopback ``--host``; True serves
+    everyone as tenant ``local``. Ignored when keys are configured."""
+
+    min_api_key_length: int = Field(default=16, ge=1)
+    """Shortest accepted API key; a shorter one stops startup with an error naming its tenant."""
+
+    rate_limit_url: str | None = None
+    """Redis URL of the rate limiter shared by every API replica; None = :attr:`broker_url` when
+    it is a ``redis://``/``rediss://`` URL, else per process; ``memory`` = per process."""
+
+    rate_limit_key_prefix: str = "dcseg:ratelimit:"
+    """Prefix of the shared limiter's Redis keys."""
+
+    failed_auth_per_minute: int = Field(default=30, ge=1)
+    """Requests with a missing or wrong API key per client address per minute; past it every
+    request from that address answers 429 until the minute ends (stops key guessing)."""
+
+    max_streams_per_tenant: int = Field(default=8, ge=1)
+    """Open event streams (``GET /v1/jobs/{id}/events``) per tenant and API process; more
+    answer 429."""
+
+    max_stream_s: float = Field(default=900.0, gt=0)
+    """Longest life of one event stream; it then ends cleanly and the client reconnects with
+    ``Last-Event-ID`` (browsers' EventSource do so by themselves)."""
+
+    stream_poll_max_s: float = Field(default=5.0, gt=0)
+    """Longest pause between store polls of an idle event stream: the pause starts at
+    :attr:`poll_interval_s` and doubles while nothing happens."""
 
     max_running_jobs_per_tenant: int = Field(default=4, ge=1)
     """Unfinished (queued, running, canceling) jobs a tenant may have; more answer 429."""
 
+    max_attempts: int = Field(default=3, ge=1)
+    """Runs a job may start. A worker that dies mid-job (OOM kill, segfault) leaves its job to
+    be claimed again; after this many claims the job fails (``too-many-attempts``) instead of
+    being requeued forever. Runs stopped by a worker shutdown do not count."""
+
+    sqlite_busy_timeout_s: float | None = Field(default=None, gt=0)
+    """How long a SQLite write waits for another writer's lock before failing; None = one
+    ``heartbeat_s``. Must be below the stale-lease window ``3 * heartbeat_s``, so a heartbeat
+    stuck behind a lock fails and retries instead of letting a live lease look dead."""
+
+    @property
+    def busy_timeout_s(self) -> float:
+        """The effective SQLite busy timeout (:attr:`sqlite_busy_timeout_s`)."""
+        return self.sqlite_busy_timeout_s or self.heartbeat_s
+
+    @model_validator(mode="after")
+    def _busy_timeout_below_stale_lease(self) -> Settings:
+        if self.busy_timeout_s >= 3 * self.heartbeat_s:
+            raise ValueError(
+                f"sqlite_busy_timeout_s (DCSEG_SQLITE_BUSY_TIMEOUT_S = {self.busy_timeout_s:g} s)"
+                " must be smaller than the stale-lease window 3 * heartbeat_s"
+                f" (DCSEG_HEARTBEAT_S = {self.heartbeat_s:g} s: {3 * self.heartbeat_s:g} s)"
+            )
+        return self
+
     rate_limit_per_minute: int = Field(default=600, ge=1)
-    """Requests per tenant per minute (per API process); more answer 429."""
+    """Requests per tenant per minute (shared by the replicas through Redis, see
+    :attr:`rate_limit_url`, else per API process); more answer 429."""
 
     retry_after_s: int = Field(default=2, ge=1)
     """``Retry-After`` sent with unfinished jobs."""
@@ -82,8 +177,30 @@ class Settings(BaseSettings):
     task_time_limit_s: int = Field(default=6 * 3600 + 300, ge=1)
     """Celery hard time limit of one job (the worker child is killed; prefork pool only)."""
 
-    stage_time_limit_s: dict[str, float] = {"validate": 900.0, "reconstruct": 5 * 3600.0}
-    """Per-stage limit, checked between iterations; a stage over it fails the job."""
+    stage_time_limit_s: dict[str, float] = {
+        "validate": 900.0,
+        "reconstruct": 5 * 3600.0,
+        "train": 3 * 3600.0,
+        "segment": 3600.0,
+    }
+    """Per-stage limit in seconds (JSON object, stage name -> seconds); a stage over it fails
+    the job. Checked at each progress report; a stage that reports none is stopped
+    ``stage_kill_grace_s`` after its limit."""
+
+    stage_time_limit_default_s: float = Field(default=3600.0, gt=0)
+    """Limit of a stage that ``stage_time_limit_s`` does not name."""
+
+    stage_kill_grace_s: float = Field(default=60.0, gt=0)
+    """How long a stage may run past its limit without reaching a progress report before it
+    is stopped by force: the job fails, and the worker process is killed where that is safe
+    (embedded ``process`` mode, Celery prefork pool child) or the stage is abandoned (thread
+    mode, Celery ``solo``/``threads`` pools)."""
+
+    shutdown_grace_s: float = Field(default=8.0, gt=0)
+    """How long the API's shutdown (embedded mode) waits for the embedded worker's job to
+    reach a progress report and stop (it stays unfinished and resumes from its last finished
+    stage at the next start) before the worker process is killed. Kept below Docker's default
+    10 s stop timeout."""
 
     device: str = "auto"
     """Worker device: ``auto`` (CUDA when available), ``cpu``, ``cuda``, ``cuda:1``..."""
@@ -95,9 +212,18 @@ class Settings(BaseSettings):
             return self.database_url
         return f"sqlite:///{self.storage_dir.resolve() / 'dcseg.db'}"
 
+    @property
+    def effective_rate_limit_url(self) -> str | None:
+        """The Redis URL of the shared rate limiter, or None for per-process limits."""
+        url = self.rate_limit_url
+        if url is None and self.broker_url and self.broker_url.startswith(REDIS_SCHEMES):
+            url = self.broker_url
+        return None if url in (None, "", "memory") else url
+
     def parsed_api_keys(self) -> dict[str, str]:
-        """``{key: tenant}`` from :attr:`api_keys`."""
-        text = self.api_keys.strip()
+        """``{key: tenant}`` from :attr:`api_keys`; ValueError (naming the tenant, never the
+        key) for a malformed entry or a key shorter than :attr:`min_api_key_length`."""
+        text = self.api_keys.get_secret_value().strip()
         if text.startswith("@"):
             text = Path(text[1:]).read_text(encoding="utf-8")
         pairs: dict[str, str] = {}
@@ -105,10 +231,15 @@ class Settings(BaseSettings):
             item = item.strip()
             if not item or item.startswith("#"):
                 continue
-            tenant, sep, key = item.partition(":")
-            if not sep or not tenant.strip() or not key.strip():
+            tenant, sep, key = (part.strip() for part in item.partition(":"))
+            if not sep or not tenant or not key:
                 raise ValueError("DCSEG_API_KEYS entries must look like tenant:key")
-            pairs[key.strip()] = tenant.strip()
+            if len(key) < self.min_api_key_length:
+                raise ValueError(
+                    f"DCSEG_API_KEYS: the key of tenant {tenant!r} has {len(key)} characters; "
+                    f"keys need at least {self.min_api_key_length} (DCSEG_MIN_API_KEY_LENGTH)"
+                )
+            pairs[key] = tenant
         return pairs
 
 

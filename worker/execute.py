@@ -14,6 +14,7 @@ import functools
 import hashlib
 import json
 import logging
+import math
 import os
 import shutil
 import socket
@@ -51,7 +52,79 @@ class LeaseLost(Exception):
 
 
 class StageTimeout(Exception):
-    """A stage ran past its time limit."""
+    """A stage ran past its time limit (``DCSEG_STAGE_TIME_LIMIT_S``)."""
+
+    def __init__(self, stage: str, limit_s: float) -> None:
+        super().__init__(
+            f"stage {stage} exceeded its time limit of {limit_s:g} s "
+            "(setting DCSEG_STAGE_TIME_LIMIT_S)"
+        )
+        self.stage, self.limit_s = stage, limit_s
+
+
+def stage_time_limit(settings: Settings, stage: str) -> float:
+    """The stage's limit in seconds: ``stage_time_limit_s[stage]`` or the default."""
+    return settings.stage_time_limit_s.get(stage, settings.stage_time_limit_default_s)
+
+
+class StageWatchdog:
+    """A thread that stops a stage stuck past its time limit without reaching a progress report.
+
+    The runner arms it when a stage starts and disarms it when the stage returns. A stage
+    that reports progress is stopped by :meth:`_Runner.check` at its limit; one still running
+    ``grace_s`` after it (stuck in native code) makes the watchdog set :attr:`fired` and call
+    ``on_overrun`` from its own thread, which fails the job and kills the process where the
+    caller allows it.
+    """
+
+    def __init__(self, grace_s: float, on_overrun: Callable[[StageTimeout], None]) -> None:
+        self.grace_s, self.on_overrun = grace_s, on_overrun
+        self.fired: StageTimeout | None = None
+        self._armed: tuple[StageTimeout, float] | None = None
+        self._closed = False
+        self._wake = threading.Condition()
+        self._thread = threading.Thread(target=self._loop, name="stage-watchdog", daemon=True)
+
+    def arm(self, stage: str, limit_s: float) -> None:
+        with self._wake:
+            self._armed = (StageTimeout(stage, limit_s), time.monotonic() + limit_s + self.grace_s)
+            self._wake.notify()
+
+    def disarm(self) -> None:
+        with self._wake:
+            self._armed = None
+            self._wake.notify()
+
+    def _due(self) -> StageTimeout | None:
+        """Wait (lock held) until the armed stage is overdue or the watchdog is closed."""
+        while not self._closed:
+            if self._armed is None:
+                self._wake.wait()
+                continue
+            timeout, due_at = self._armed
+            left = due_at - time.monotonic()
+            if left <= 0:
+                return timeout
+            self._wake.wait(left if math.isfinite(left) else None)
+        return None
+
+    def _loop(self) -> None:
+        with self._wake:
+            self.fired = self._due()
+        if self.fired is not None:
+            self.on_overrun(self.fired)
+
+    def __enter__(self) -> StageWatchdog:
+        self._thread.start()
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        with self._wake:
+            self._closed = True
+            self._wake.notify()
+        self._thread.join()
 
 
 @dataclass(frozen=True)
@@ -159,12 +232,14 @@ class _Runner:
         stages: Sequence[Stage],
         heartbeat: Heartbeat,
         interrupt: Callable[[], bool],
+        watchdog: StageWatchdog | None = None,
     ) -> None:
         self.store, self.settings, self.paths = store, settings, paths
         self.stages, self.heartbeat, self.interrupt = stages, heartbeat, interrupt
+        self.watchdog = watchdog
         self._last_report = 0.0
         self._deadline = float("inf")
-        self._stage_limit = 0.0
+        self._timeout: StageTimeout | None = None
 
     def check(self) -> None:
         """Raise if the job must stop: cancel flag, worker shutdown or stage time limit."""
@@ -174,8 +249,23 @@ class _Runner:
             raise Canceled()
         if self.interrupt():
             raise Interrupted()
-        if time.monotonic() > self._deadline:
-            raise StageTimeout(f"stage ran longer than its limit of {self._stage_limit:g} s")
+        if self.watchdog is not None and self.watchdog.fired is not None:
+            raise self.watchdog.fired
+        if self._timeout is not None and time.monotonic() > self._deadline:
+            raise self._timeout
+
+    def _start_clock(self, stage: str) -> None:
+        """Start the stage's time limit (checked at progress reports and by the watchdog)."""
+        limit = stage_time_limit(self.settings, stage)
+        self._timeout = StageTimeout(stage, limit)
+        self._deadline = time.monotonic() + limit
+        if self.watchdog is not None:
+            self.watchdog.arm(stage, limit)
+
+    def _stop_clock(self) -> None:
+        self._timeout, self._deadline = None, float("inf")
+        if self.watchdog is not None:
+            self.watchdog.disarm()
 
     def report(self, name: str, index: int, fraction: float, message: str, force: bool) -> None:
         self.check()
@@ -209,17 +299,13 @@ class _Runner:
                 self.store.log(job_id, f"{stage.name}: already finished", stage=stage.name)
                 continue
             self.check()
-            self._stage_limit = self.settings.stage_time_limit_s.get(stage.name, float("inf"))
-            self._deadline = time.monotonic() + self._stage_limit
+            self._start_clock(stage.name)
             self.report(stage.name, index, 0.0, f"{stage.name}: started", force=True)
             key = _key_hash(stage.key(config))
             tmp = self.paths.output / f".tmp-{stage.name}-{uuid.uuid4().hex[:8]}"
             tmp.mkdir()
-            reused = parent_stages.get(stage.name)
-            if parent and reused and reused.get("key") == key and reused["status"] == "done":
-                _link_tree(parent.output / stage.name, tmp)
-                outcome = StageOutcome("done", f"reused from job {parent.job_id}", {"reused": True})
-            else:
+            outcome = _reuse_parent_stage(parent, parent_stages.get(stage.name), key, tmp)
+            if outcome is None:
                 ctx = StageContext(
                     job_id=job_id,
                     input_root=input_root,
@@ -230,7 +316,7 @@ class _Runner:
                     output_root=self.paths.output,
                 )
                 outcome = stage.run(ctx, tmp)
-            self._deadline = float("inf")
+            self._stop_clock()
             self.check()  # a worker that lost its lease or was canceled must not commit
             manifest["stages"].append(self._commit(stage.name, index, key, tmp, outcome))
             write_manifest(self.paths, manifest)
@@ -264,36 +350,88 @@ class _Runner:
         }
 
 
-def _link_tree(source: Path, dest: Path) -> None:
-    """Hard-link (or copy) every file of ``source`` into ``dest``: artifacts are immutable."""
-    for path in sorted(source.rglob("*")):
-        target = dest / path.relative_to(source)
-        if path.is_dir():
-            target.mkdir(parents=True, exist_ok=True)
-            continue
+def _reuse_parent_stage(
+    parent: JobPaths | None, entry: dict[str, Any] | None, key: str, tmp: Path
+) -> StageOutcome | None:
+    """Link the parent's finished stage into ``tmp`` when its key matches, or return None to
+    run the stage. Also None when a file of the parent's manifest entry is gone or changed
+    (the parent was deleted meanwhile): the stage is redone rather than recorded empty."""
+    if parent is None or entry is None or entry.get("key") != key or entry["status"] != "done":
+        return None
+    try:
+        _link_files(parent.output, entry["files"], entry["name"], tmp)
+    except (OSError, ValueError) as error:
+        logger.warning(
+            "stage %s of parent job %s cannot be reused (%s); running it",
+            entry["name"],
+            parent.job_id,
+            error,
+        )
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir()
+        return None
+    return StageOutcome("done", f"reused from job {parent.job_id}", {"reused": True})
+
+
+def _link_files(source: Path, files: dict[str, Any], name: str, dest: Path) -> None:
+    """Hard-link (or copy) each manifest file ``<name>/<path>`` of ``source`` to
+    ``dest/<path>``; ValueError when a linked file's size differs from the manifest's."""
+    for entry, meta in files.items():
+        relative = Path(entry).relative_to(name)
+        target = dest / relative
         target.parent.mkdir(parents=True, exist_ok=True)
         try:
-            os.link(path, target)
-        except OSError:
-            shutil.copy2(path, target)
+            os.link(source / entry, target)
+        except OSError:  # another filesystem, say (a vanished file fails the copy too)
+            shutil.copy2(source / entry, target)
+        if target.stat().st_size != meta["size"]:
+            raise ValueError(f"{entry} is {target.stat().st_size} bytes, not {meta['size']}")
 
 
 def default_worker_id() -> str:
     return f"{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}"
 
 
-def error_body(error: BaseException) -> dict[str, Any]:
-    """The job's ``error`` for an exception (input problems keep their file and reason)."""
+def error_body(
+    error: BaseException, job_id: str = "-", input_root: Path | None = None
+) -> dict[str, Any]:
+    """The job's ``error`` as clients see it, and the server-side log line of the failure.
+
+    Input problems keep their file (relative to the upload) and reason, time limits name the
+    stage, its limit and the setting. Anything else may carry storage paths, broker or
+    database URLs in its text: clients get a generic message with an ``error_id``, and the
+    full exception and traceback are logged under that id.
+    """
     from dcseg.errors import InputError
 
     if isinstance(error, InputError):
-        errors = [{"path": p.path, "reason": p.reason} for p in error.problems]
-        return {"type": "invalid-input", "detail": str(error), "errors": errors}
+        logger.warning("job %s: invalid input: %s", job_id, error)
+        errors = [
+            {"path": _relative(p.path, input_root), "reason": _relative(p.reason, input_root)}
+            for p in error.problems
+        ]
+        detail = "; ".join(f"{e['path']}: {e['reason']}" for e in errors)
+        return {"type": "invalid-input", "detail": detail, "errors": errors}
     if isinstance(error, StageTimeout):
+        logger.warning("job %s: %s", job_id, error)
         return {"type": "timeout", "detail": str(error)}
     if type(error).__name__ == "SoftTimeLimitExceeded":  # Celery's, without importing Celery
-        return {"type": "timeout", "detail": "the job ran past its time limit"}
-    return {"type": "internal", "detail": f"{type(error).__name__}: {error}"}
+        logger.warning("job %s: ran past DCSEG_TASK_SOFT_TIME_LIMIT_S", job_id)
+        detail = "the job ran past its time limit (setting DCSEG_TASK_SOFT_TIME_LIMIT_S)"
+        return {"type": "timeout", "detail": detail}
+    error_id = uuid.uuid4().hex[:12]
+    logger.error("job %s failed, error id %s", job_id, error_id, exc_info=error)
+    detail = f"internal error {error_id}; the operator can find it in the worker log"
+    return {"type": "internal", "detail": detail, "error_id": error_id}
+
+
+def _relative(text: str, root: Path | None) -> str:
+    """``text`` with the upload's absolute location removed (paths relative to the upload)."""
+    if root is None:
+        return text
+    for prefix in {str(root), str(root.resolve())}:
+        text = text.replace(prefix + os.sep, "").replace(prefix, ".")
+    return text
 
 
 def execute_job(
@@ -304,6 +442,7 @@ def execute_job(
     stages: Sequence[Stage] | None = None,
     worker_id: str | None = None,
     interrupt: Callable[[], bool] | None = None,
+    kill: Callable[[], None] | None = None,
 ) -> str:
     """Claim and run a job; returns its final status, ``skipped``, ``interrupted`` or ``lost``.
 
@@ -315,6 +454,9 @@ def execute_job(
         worker_id: who runs it (default: host, pid and thread).
         interrupt: polled between iterations; True stops the job without finishing it (it is
             resumed when claimed again).
+        kill: ends this process; called after the job is failed when a stage runs
+            ``stage_kill_grace_s`` past its limit without a progress report (None: the stuck
+            stage is abandoned, in a thread that cannot be stopped).
     """
     worker = worker_id or default_worker_id()
     job = store.claim_job(job_id, worker, timedelta(seconds=3 * settings.heartbeat_s))
@@ -328,33 +470,78 @@ def execute_job(
     upload = store.get_upload(job.upload_id, job.tenant_id)
     paths = JobPaths(settings.storage_dir, job_id)
     parent = JobPaths(settings.storage_dir, job.parent_job_id) if job.parent_job_id else None
-    with Heartbeat(store, job_id, worker, settings.heartbeat_s) as heartbeat:
-        runner = _Runner(store, settings, paths, stages, heartbeat, interrupt or (lambda: False))
+    overrun = _overrun(store, job_id, worker, kill)
+    input_root: Path | None = None
+    with (
+        Heartbeat(store, job_id, worker, settings.heartbeat_s) as heartbeat,
+        StageWatchdog(settings.stage_kill_grace_s, overrun) as watchdog,
+    ):
+        runner = _Runner(
+            store, settings, paths, stages, heartbeat, interrupt or (lambda: False), watchdog
+        )
         try:
             if upload is None:
                 raise FileNotFoundError(f"upload {job.upload_id} is gone")
             data = UploadPaths(settings.storage_dir, upload.id).data
             digests = upload.summary.get("digests") or {"upload": upload.id}
             config = {**job.config, "inputs": digests}
-            runner.run(data / str(upload.summary.get("root", ".")), config, parent)
+            input_root = data / str(upload.summary.get("root", "."))
+            runner.run(input_root, config, parent)
         except Canceled:
             return _finish(store, job_id, worker, "canceled", None)
         except Interrupted:
-            logger.info("job %s interrupted by shutdown; it resumes on the next claim", job_id)
-            return "interrupted"
+            _not_a_crash(store, job_id, worker)
+            return _interrupted(store, job_id, worker, heartbeat)
         except LeaseLost:
+            if watchdog.fired is not None:  # the watchdog failed the job; its stage returned
+                return "failed"
             logger.warning("job %s was taken over by another worker; stopping", job_id)
             return "lost"
         except Exception as error:
-            logger.exception("job %s failed", job_id)
-            return _finish(store, job_id, worker, "failed", error_body(error))
+            if watchdog.fired is not None:
+                return "failed"
+            return _finish(store, job_id, worker, "failed", error_body(error, job_id, input_root))
     return _finish(store, job_id, worker, "succeeded", None)
+
+
+def _not_a_crash(store: Store, job_id: str, worker: str) -> None:
+    """A run stopped by a shutdown gives its attempt back (``max_attempts`` counts crashes)."""
+    try:
+        store.release_attempt(job_id, worker)
+    except Exception:  # the job then counts one attempt more; never block the shutdown
+        logger.warning("job %s: could not release its attempt", job_id, exc_info=True)
+
+
+def _interrupted(store: Store, job_id: str, worker: str, heartbeat: Heartbeat) -> str:
+    """Give the job up unfinished: stop the heartbeat, then expire the lease, so the next
+    delivery (or the recovery sweep) resumes it after its last finished stage at once."""
+    heartbeat.__exit__(None, None, None)  # no beat may refresh the lease after this
+    store.expire_lease(job_id, worker)
+    logger.info("job %s interrupted by shutdown; it resumes on the next claim", job_id)
+    return "interrupted"
+
+
+def _overrun(
+    store: Store, job_id: str, worker: str, kill: Callable[[], None] | None
+) -> Callable[[StageTimeout], None]:
+    """What the watchdog does with a stage stuck past its limit: fail the job, then kill the
+    process if allowed (the stage may be stuck in native code, beyond any exception)."""
+
+    def stop(timeout: StageTimeout) -> None:
+        logger.error("job %s: %s and reported no progress; stopping it", job_id, timeout)
+        _finish(store, job_id, worker, "failed", error_body(timeout, job_id))
+        if kill is not None:
+            logger.error("killing worker process %d, stuck in %s", os.getpid(), timeout.stage)
+            kill()
+
+    return stop
 
 
 def _finish(
     store: Store, job_id: str, worker: str, status: str, error: dict[str, Any] | None
 ) -> str:
-    if store.finish_job(job_id, status, error, message=status, worker=worker):
-        return status
+    recorded = store.finish_job(job_id, status, error, message=status, worker=worker)
+    if recorded is not None:
+        return recorded  # "canceled" when a cancel was acknowledged meanwhile
     logger.warning("job %s: not recorded as %s (taken over by another worker)", job_id, status)
     return "lost"

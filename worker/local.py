@@ -5,37 +5,65 @@ It polls the job store for ``queued`` jobs (the store is the queue) and runs the
 child process started with ``spawn`` (CUDA and torch never load in the API process, and a
 crashing job cannot take the API down); ``mode="thread"`` runs it in the API process (tests).
 
-On shutdown the current job is interrupted between iterations and left ``running``; the next
-``dcseg serve`` requeues it at startup and it resumes after its last finished stage.
+On shutdown the current job is interrupted at its next progress report and left ``running``;
+the next ``dcseg serve`` requeues it at startup and it resumes after its last finished stage.
+Stopping is bounded by ``DCSEG_SHUTDOWN_GRACE_S``: the child is asked to stop with SIGTERM
+(no shared lock or semaphore, so a child that already died, for instance from a Ctrl-C or a
+SIGTERM sent to the whole process group, cannot block the API's shutdown), then killed.
 """
 
 from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
+import signal
 import threading
+from collections.abc import Callable, Sequence
 from multiprocessing.process import BaseProcess
+from types import FrameType
 from typing import Any, Literal
 
 from service.settings import Settings
 from service.store import Store
-from worker.execute import execute_job
+from worker.execute import Stage, execute_job
 
 logger = logging.getLogger(__name__)
 
-STOP_TIMEOUT_S = 10.0
+KILL_WAIT_S = 5.0
+"""How long to wait for a killed child to be reaped."""
+
+EXIT_STUCK_STAGE = 70
+"""Exit status of a worker process that killed itself because a stage was stuck."""
+
+StagesFactory = Callable[[], Sequence[Stage]]
+"""Makes the stages of one job (a module-level function, so a spawned child can import it)."""
 
 
-def run_local_worker(settings: Settings, stop: Any) -> None:
-    """Run queued jobs until ``stop`` (a threading or multiprocessing Event) is set."""
-    store = Store(settings.db_url)
+def run_local_worker(
+    settings: Settings,
+    stop: Any,
+    *,
+    stages: StagesFactory | None = None,
+    kill: Callable[[], None] | None = None,
+) -> None:
+    """Run queued jobs until ``stop`` (a ``threading.Event``) is set.
+
+    ``stages`` makes each job's stages (default :func:`worker.stages.default_stages`);
+    ``kill`` ends the process when a stage is stuck past its time limit (None in thread mode,
+    where the stuck stage is abandoned).
+    """
+    store = Store.from_settings(settings)
     try:
         while not stop.is_set():
             job_id = store.next_queued()
             if job_id is None:
                 stop.wait(settings.poll_interval_s)
                 continue
-            status = execute_job(job_id, store, settings, interrupt=stop.is_set)
+            job_stages = stages() if stages is not None else None
+            status = execute_job(
+                job_id, store, settings, stages=job_stages, interrupt=stop.is_set, kill=kill
+            )
             logger.info("job %s: %s", job_id, status)
     except Exception:
         logger.exception("embedded worker crashed")
@@ -44,30 +72,60 @@ def run_local_worker(settings: Settings, stop: Any) -> None:
         store.close()
 
 
+def kill_this_process() -> None:
+    """End the worker process at once (a stage is stuck; its job was already failed)."""
+    logging.shutdown()
+    os._exit(EXIT_STUCK_STAGE)
+
+
+def run_worker_process(settings: Settings, stages: StagesFactory | None = None) -> None:
+    """The child process: SIGTERM or SIGINT interrupts the running job at its next progress
+    report (it stays ``running`` and resumes at the next start), then the process exits."""
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    run_local_worker(settings, stop, stages=stages, kill=kill_this_process)
+
+
 class EmbeddedWorker:
     """Starts and stops :func:`run_local_worker` in a child process or a thread."""
 
-    def __init__(self, settings: Settings, mode: Literal["process", "thread"] = "process") -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        mode: Literal["process", "thread"] = "process",
+        stages: StagesFactory | None = None,
+    ) -> None:
         self.settings = settings
         self.mode = mode
+        self.stages = stages
         self._thread: threading.Thread | None = None
         self._process: BaseProcess | None = None
-        self._stop: Any = None
+        self._stop: threading.Event | None = None
+        self._running = False
 
     def start(self) -> None:
         if self.mode == "thread":
             self._stop = threading.Event()
             self._thread = threading.Thread(
-                target=run_local_worker, args=(self.settings, self._stop), name="dcseg-worker"
+                target=run_local_worker,
+                args=(self.settings, self._stop),
+                kwargs={"stages": self.stages},
+                name="dcseg-worker",
+                daemon=True,  # a stage stuck past the shutdown grace must not block exit
             )
             self._thread.start()
         else:
             context = multiprocessing.get_context("spawn")
-            self._stop = context.Event()
             self._process = context.Process(
-                target=run_local_worker, args=(self.settings, self._stop), name="dcseg-worker"
+                target=run_worker_process, args=(self.settings, self.stages), name="dcseg-worker"
             )
             self._process.start()
+        self._running = True
         logger.info("embedded worker started (%s)", self.mode)
 
     def alive(self) -> bool:
@@ -76,23 +134,31 @@ class EmbeddedWorker:
 
     def ensure_running(self) -> None:
         """Restart the worker if it died (its job is requeued by the lease sweep)."""
-        if self._stop is not None and not self._stop.is_set() and not self.alive():
+        if self._running and not self.alive():
             logger.warning("embedded worker died; restarting it")
             self._thread = self._process = None
             self.start()
 
     def stop(self) -> None:
-        if self._stop is None:
+        """Interrupt the running job and stop, within ``shutdown_grace_s`` (plus reaping)."""
+        if not self._running:
             return
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(STOP_TIMEOUT_S)
+        self._running = False
+        grace = self.settings.shutdown_grace_s
+        if self._thread is not None and self._stop is not None:
+            self._stop.set()
+            self._thread.join(grace)
+            if self._thread.is_alive():
+                logger.warning("embedded worker thread still busy after %g s; abandoned", grace)
         if self._process is not None:
-            self._process.join(STOP_TIMEOUT_S)
-            if self._process.is_alive():
-                logger.warning(
-                    "embedded worker still busy after %.0f s; terminating", STOP_TIMEOUT_S
-                )
-                self._process.terminate()
-                self._process.join(STOP_TIMEOUT_S)
-        self._stop = None
+            self._stop_process(self._process, grace)
+
+    @staticmethod
+    def _stop_process(process: BaseProcess, grace: float) -> None:
+        if process.is_alive():
+            process.terminate()  # SIGTERM: the child interrupts its job at the next report
+            process.join(grace)
+        if process.is_alive():
+            logger.warning("embedded worker still busy after %g s; killing it", grace)
+            process.kill()
+            process.join(KILL_WAIT_S)

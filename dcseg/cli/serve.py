@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from service.settings import Settings
 
 
 def register(subparsers: Any) -> None:
@@ -31,6 +34,22 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def refusal(settings: Settings, host: str) -> str | None:
+    """Why ``dcseg serve`` must not start with ``settings`` on ``host``, or None. Tests the
+    parsed keys: ``@file`` of comments, ``#x`` or `` , `` configure none."""
+    try:
+        keys = settings.parsed_api_keys()
+    except (OSError, ValueError) as error:
+        return str(error)
+    if keys or settings.allow_unauthenticated or is_loopback(host):
+        return None
+    return (
+        f"refusing to bind {host} without API keys (DCSEG_API_KEYS configures none); set "
+        "DCSEG_API_KEYS (tenant:key,...), bind 127.0.0.1, or set "
+        "DCSEG_ALLOW_UNAUTHENTICATED=true to serve everyone without authentication"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -38,11 +57,9 @@ def run(args: argparse.Namespace) -> int:
     from service.settings import get_settings
 
     settings = get_settings()
-    if not settings.api_keys.strip() and not is_loopback(args.host):
-        sys.stderr.write(
-            f"dcseg serve: refusing to bind {args.host} without API keys; set DCSEG_API_KEYS "
-            "(tenant:key,...) or bind 127.0.0.1\n"
-        )
+    reason = refusal(settings, args.host)
+    if reason is not None:
+        sys.stderr.write(f"dcseg serve: {reason}\n")
         return 2
     uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
     return 0

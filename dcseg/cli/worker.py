@@ -12,7 +12,9 @@ def register(subparsers: Any) -> None:
         "worker",
         help="run a Celery worker for dcseg jobs",
         description="Consume dcseg jobs from DCSEG_BROKER_URL. Run one worker per GPU "
-        "(--concurrency 1, the default).",
+        "(--concurrency 1, the default). SIGTERM stops the running job at its next progress "
+        "report and puts it back on the queue; the next worker resumes it after its last "
+        "finished stage.",
     )
     parser.add_argument("--queues", default=None, help="comma-separated queues (default: gpu)")
     parser.add_argument("--concurrency", type=int, default=1, help="worker processes (default 1)")

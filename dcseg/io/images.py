@@ -3,11 +3,19 @@
 Every reader in :mod:`dcseg.io` decodes images through :func:`read_image`, so that an unreadable,
 corrupt or oversized file always produces an :class:`~dcseg.errors.InputError` naming the file.
 Colour images come back as RGB(A); single-channel images (depth, label maps) keep their dtype.
+
+Sizes are read from PNG, JPEG and TIFF headers before anything is decoded, both for the per-image
+limit :data:`MAX_PIXELS` and for an optional total budget: inside ``with pixel_budget(n):``
+every decode is charged against ``n`` pixels (by its header before decoding, or, for formats
+whose header is not read, by its decoded size), and a decode beyond the budget is refused.
 """
 
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
@@ -16,11 +24,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.errors import InputError
+from dcseg.io.limits import limit_error
 
 __all__ = [
     "MAX_PIXELS",
+    "charge_pixels",
     "display_path",
+    "header_pixels",
     "image_size",
+    "pixel_budget",
     "read_image",
     "resize_area",
     "resize_nearest",
@@ -33,6 +45,21 @@ MAX_PIXELS = 100_000_000
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+_TIFF_BYTE_ORDER = {b"II*\x00": "<", b"MM\x00*": ">"}
+_TIFF_WIDTH, _TIFF_LENGTH = 256, 257
+_TIFF_SHORT, _TIFF_LONG = 3, 4
+_HEADER_BYTES = 65536
+
+
+class _PixelBudget:
+    """Pixels decoded so far against a total limit."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.used = 0
+
+
+_BUDGET: ContextVar[_PixelBudget | None] = ContextVar("dcseg_pixel_budget", default=None)
 
 
 def display_path(path: Path, root: Path | None = None) -> str:
@@ -74,12 +101,39 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
     return None
 
 
+def _tiff_size(head: bytes, read_at: Callable[[int, int], bytes]) -> tuple[int, int] | None:
+    """Width and length tags of a classic TIFF's first IFD; ``read_at(offset, n)`` reads bytes."""
+    order = _TIFF_BYTE_ORDER.get(head[:4])
+    if order is None or len(head) < 8:
+        return None
+    (ifd,) = struct.unpack(order + "I", head[4:8])
+    count_bytes = read_at(ifd, 2)
+    if len(count_bytes) < 2:
+        return None
+    (count,) = struct.unpack(order + "H", count_bytes)
+    entries = read_at(ifd + 2, 12 * count)
+    found: dict[int, int] = {}
+    for i in range(len(entries) // 12):
+        tag, kind, _, value = struct.unpack(order + "HHI4s", entries[12 * i : 12 * i + 12])
+        if tag in (_TIFF_WIDTH, _TIFF_LENGTH) and kind in (_TIFF_SHORT, _TIFF_LONG):
+            fmt = "H" if kind == _TIFF_SHORT else "I"
+            found[tag] = int(struct.unpack_from(order + fmt, value)[0])
+    if _TIFF_WIDTH not in found or _TIFF_LENGTH not in found:
+        return None
+    return found[_TIFF_WIDTH], found[_TIFF_LENGTH]
+
+
 def _header_size(data: bytes) -> tuple[int, int] | None:
-    return _png_size(data) or _jpeg_size(data)
+    """The size of a PNG, JPEG or TIFF held (at least its header) in ``data``."""
+    return (
+        _png_size(data)
+        or _jpeg_size(data)
+        or _tiff_size(data, lambda offset, n: data[offset : offset + n])
+    )
 
 
 def image_size(path: Path) -> tuple[int, int] | None:
-    """``(width, height)`` of a PNG or JPEG read from its header only; None if not recognised.
+    """``(width, height)`` of a PNG, JPEG or TIFF read from its header only; None otherwise.
 
     Args:
         path: the image file.
@@ -89,10 +143,66 @@ def image_size(path: Path) -> tuple[int, int] | None:
     """
     try:
         with path.open("rb") as fh:
-            data = fh.read(65536)
+            head = fh.read(_HEADER_BYTES)
+
+            def read_at(offset: int, n: int) -> bytes:
+                fh.seek(offset)
+                return fh.read(n)
+
+            return _png_size(head) or _jpeg_size(head) or _tiff_size(head, read_at)
     except OSError:
         return None
-    return _header_size(data)
+
+
+def header_pixels(path: Path) -> int | None:
+    """How many pixels (or ``.npy`` values) decoding ``path`` gives, read from its header only.
+
+    Args:
+        path: a PNG, JPEG, TIFF or ``.npy`` file.
+
+    Returns:
+        ``width * height`` (the element count for ``.npy``), or None when the header is not
+        one of those formats or cannot be read.
+    """
+    if path.suffix.lower() == ".npy":
+        try:
+            return int(np.load(path, mmap_mode="r", allow_pickle=False).size)
+        except (OSError, ValueError, EOFError):
+            return None
+    size = image_size(path)
+    return None if size is None else size[0] * size[1]
+
+
+@contextmanager
+def pixel_budget(max_pixels: int | None) -> Iterator[None]:
+    """Within the block, refuse decodes once more than ``max_pixels`` pixels were decoded.
+
+    Args:
+        max_pixels: the total budget; None = no budget.
+    """
+    token = _BUDGET.set(None if max_pixels is None else _PixelBudget(max_pixels))
+    try:
+        yield
+    finally:
+        _BUDGET.reset(token)
+
+
+def charge_pixels(pixels: int, shown: str) -> None:
+    """Count ``pixels`` against the current :func:`pixel_budget`, if any.
+
+    Raises:
+        InputError: (a :class:`~dcseg.io.limits.LimitProblem`) the budget is exceeded.
+    """
+    budget = _BUDGET.get()
+    if budget is None:
+        return
+    budget.used += pixels
+    if budget.used > budget.limit:
+        raise limit_error(
+            shown,
+            f"not decoded: the inputs decode to more than {budget.limit:,} pixels in total",
+            "max_pixels",
+        )
 
 
 def _read_bytes(path: Path, shown: str) -> bytes:
@@ -139,14 +249,19 @@ def read_image(path: Path, *, root: Path | None = None) -> NDArray[Any]:
         ``[H, W, 3]`` RGB or ``[H, W, 4]`` RGBA for colour images.
 
     Raises:
-        InputError: the file is missing, empty, not an image, corrupt, or larger than
-            :data:`MAX_PIXELS`.
+        InputError: the file is missing, empty, not an image, corrupt, larger than
+            :data:`MAX_PIXELS`, or beyond the current :func:`pixel_budget`.
     """
     shown = display_path(path, root)
     data = _read_bytes(path, shown)
-    _check_pixels(_header_size(data), shown)
+    header = _header_size(data)
+    _check_pixels(header, shown)
+    if header is not None:
+        charge_pixels(header[0] * header[1], shown)
     image = _decode(data, shown)
     _check_pixels((int(image.shape[1]), int(image.shape[0])), shown)
+    if header is None:
+        charge_pixels(int(image.shape[0]) * int(image.shape[1]), shown)
     if image.ndim == 3 and image.shape[2] == 3:
         return np.ascontiguousarray(image[:, :, ::-1])
     if image.ndim == 3 and image.shape[2] == 4:

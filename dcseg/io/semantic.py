@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,13 @@ from dcseg.io.folders import entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest, write_image
 from dcseg.types import SemanticMap, Vocabulary
 
-__all__ = ["read_semantic_maps", "read_vocabulary", "write_semantic_png", "write_vocabulary"]
+__all__ = [
+    "iter_semantic_maps",
+    "read_semantic_maps",
+    "read_vocabulary",
+    "write_semantic_png",
+    "write_vocabulary",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -138,22 +145,40 @@ def read_semantic_maps(
     Raises:
         InputError: listing every problem found (file and reason).
     """
+    out: dict[str, SemanticMap] = {}
+    problems: list[Problem] = []
+    for item in iter_semantic_maps(folder, vocabulary, size=size):
+        if isinstance(item, Problem):
+            problems.append(item)
+        else:
+            out[item.name] = item
+    if problems:
+        raise InputError(problems)
+    return out
+
+
+def iter_semantic_maps(
+    folder: Path, vocabulary: Vocabulary, *, size: tuple[int, int] | None = None
+) -> Iterator[SemanticMap | Problem]:
+    """Like :func:`read_semantic_maps`, one map at a time (for checks that must not hold them
+    all); each problem is yielded in place of the map it concerns.
+
+    Raises:
+        InputError: the folder does not exist.
+    """
     if not folder.is_dir():
         raise InputError.single(str(folder), "semantic map folder not found (or not a folder)")
     entries, problems = _map_entries(folder)
-    out: dict[str, SemanticMap] = {}
+    yield from problems
     for stem, path in sorted(entries.items()):
         try:
             classes = _read_class_map(path, folder.parent, len(vocabulary))
         except InputError as err:
-            problems.extend(err.problems)
+            yield from err.problems
             continue
         if size is not None:
             classes = resize_nearest(classes, size)
-        out[stem] = SemanticMap(stem, classes, display_path(path, folder.parent))
-    if problems:
-        raise InputError(problems)
-    return out
+        yield SemanticMap(stem, classes, display_path(path, folder.parent))
 
 
 def write_semantic_png(path: Path, m: SemanticMap, n_classes: int) -> None:

@@ -1,11 +1,16 @@
 """Check a capture and its masks together, collecting every problem instead of stopping early.
 
-Used by ``dcseg validate`` and by the HTTP service before it accepts a job.
+Used by ``dcseg validate`` and by the HTTP service before it accepts a job. Frames and class
+maps are decoded one at a time and only summaries are kept, so memory stays bounded by one
+frame; with ``max_pixels`` the total is checked from the image headers before anything is
+decoded. Masks are cross-checked against the frame names the capture lists even when some
+frames cannot be read, so every problem of every input is reported in one pass.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -15,16 +20,25 @@ import numpy as np
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
 from dcseg.io.bundle import bundle_paths
-from dcseg.io.captures import read_capture
+from dcseg.io.captures import CaptureListing, list_capture
+from dcseg.io.captures.common import iter_frames, select
 from dcseg.io.ground_truth import read_ground_truth
+from dcseg.io.images import header_pixels, pixel_budget
+from dcseg.io.limits import LimitProblem
 from dcseg.io.masks import read_agnostic_masks
-from dcseg.io.semantic import read_semantic_maps, read_vocabulary
-from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
+from dcseg.io.semantic import iter_semantic_maps, read_vocabulary
+from dcseg.types import AgnosticMasks, Capture, Frame, GroundTruth, SemanticMap, Vocabulary
 
 ASPECT_TOLERANCE = 0.02
 """Largest relative difference between a mask's and its frame's aspect ratio."""
 
+_DECODED_SUFFIXES = (".png", ".npy")
+"""Files of mask folders that validation decodes (SAM JSON holds RLEs, never decoded)."""
+
 T = TypeVar("T")
+
+FrameSizes = Mapping[str, tuple[int, int] | None]
+"""Frame name -> its ``(width, height)``, or None when the frame could not be read."""
 
 
 @dataclass(frozen=True)
@@ -62,33 +76,36 @@ class ValidationReport:
         return not self.problems
 
 
-def validate_inputs(paths: InputPaths, options: CaptureOptions | None = None) -> ValidationReport:
+def validate_inputs(
+    paths: InputPaths, options: CaptureOptions | None = None, *, max_pixels: int | None = None
+) -> ValidationReport:
     """Read every input, cross-check masks against frames, and summarise.
 
     Args:
         paths: the capture and the optional mask folders, vocabulary and ground truth.
         options: capture reader options (frame stride, size, intrinsics, ...).
+        max_pixels: the most pixels all decoded images (colour, depth, masks, class maps) may
+            have together; summed from their headers before anything is decoded, and enforced
+            on every decode. None = no total limit (each image is still capped).
 
     Returns:
         A report whose ``problems`` is empty exactly when the inputs are usable together.
+        A refusal for ``max_pixels`` is a :class:`~dcseg.io.limits.LimitProblem`.
     """
+    options = options or CaptureOptions()
     problems: list[Problem] = []
     summary: dict[str, Any] = {}
-    capture = _attempt(problems, lambda: read_capture(paths.capture, options or CaptureOptions()))
-    if capture is not None:
-        summary["capture"] = summarise_capture(capture)
-    frame_sizes = {f.name: (f.width, f.height) for f in capture.frames} if capture else None
-    if paths.agnostic_masks is not None:
-        agnostic = _attempt(problems, lambda: read_agnostic_masks(_need(paths.agnostic_masks)))
-        if agnostic is not None:
-            problems += _check_against_frames(agnostic, _agnostic_size, frame_sizes)
-            summary["agnostic_masks"] = summarise_agnostic(agnostic)
-    if paths.semantic_masks is not None or paths.vocabulary is not None:
-        vocabulary = _check_semantic(paths, problems, summary, frame_sizes)
-    else:
-        vocabulary = None
-    if paths.ground_truth is not None:
-        summary["ground_truth"] = _check_ground_truth(paths.ground_truth, vocabulary, problems)
+    with ExitStack() as stack:
+        listed = _attempt(
+            problems, lambda: stack.enter_context(list_capture(paths.capture, options))
+        )
+        if max_pixels is not None:
+            over = _over_pixel_budget(paths, listed, options, max_pixels)
+            if over is not None:
+                return ValidationReport(summary, (*problems, over))
+        with pixel_budget(max_pixels):
+            frame_sizes = _check_capture(listed, options, problems, summary)
+            _check_masks(paths, frame_sizes, problems, summary)
     return ValidationReport(summary, tuple(problems))
 
 
@@ -106,11 +123,168 @@ def _attempt(problems: list[Problem], read: Callable[[], T]) -> T | None:
         return None
 
 
+# --------------------------------------------------------------------------- pixel budget
+
+
+def _decoded_files(
+    paths: InputPaths, listed: CaptureListing | None, options: CaptureOptions
+) -> Iterable[Path]:
+    """Every file validation will decode as an image or array."""
+    if listed is not None:
+        for spec in select(listed.listing.specs, options):
+            yield spec.rgb
+            yield spec.depth
+    for folder in (paths.agnostic_masks, paths.semantic_masks):
+        if folder is not None and folder.is_dir():
+            for path in sorted(folder.rglob("*")):
+                if path.suffix.lower() in _DECODED_SUFFIXES and path.is_file():
+                    yield path
+
+
+def _over_pixel_budget(
+    paths: InputPaths, listed: CaptureListing | None, options: CaptureOptions, max_pixels: int
+) -> Problem | None:
+    """The problem of inputs whose headers add up to more than ``max_pixels``, if they do."""
+    total = 0
+    files = 0
+    for path in _decoded_files(paths, listed, options):
+        total += header_pixels(path) or 0
+        files += 1
+        if total > max_pixels:
+            return LimitProblem(
+                str(path),
+                f"the inputs decode to more than {max_pixels:,} pixels in total (reached at "
+                f"this file, number {files:,} of those to decode, from the image headers); "
+                "nothing was decoded",
+                "max_pixels",
+            )
+    return None
+
+
+# --------------------------------------------------------------------------- capture
+
+
+class _CaptureTally:
+    """A capture summary built frame by frame, so frames need not be held together."""
+
+    def __init__(self, layout: str) -> None:
+        self.layout = layout
+        self.names: set[str] = set()
+        self.sizes: set[str] = set()
+        self.frames = 0
+        self.pixels = 0
+        self.valid = 0
+        self.depth_min = float("inf")
+        self.depth_max = float("-inf")
+
+    def add(self, frame: Frame) -> list[Problem]:
+        """Count ``frame`` in; returns its problems (duplicate name, bad arrays)."""
+        out: list[Problem] = []
+        if frame.name in self.names:
+            out.append(Problem(frame.file("rgb"), f"duplicate frame name {frame.name!r}"))
+        self.names.add(frame.name)
+        out.extend(frame.problems())
+        self.frames += 1
+        self.sizes.add(f"{frame.width}x{frame.height}")
+        valid = frame.depth[frame.depth > 0]
+        self.pixels += int(frame.depth.size)
+        self.valid += int(valid.size)
+        if valid.size:
+            self.depth_min = min(self.depth_min, float(valid.min()))
+            self.depth_max = max(self.depth_max, float(valid.max()))
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """The same fields as :func:`summarise_capture`."""
+        return {
+            "layout": self.layout,
+            "frames": self.frames,
+            "resolution": sorted(self.sizes),
+            "depth_min_m": self.depth_min if self.valid else None,
+            "depth_max_m": self.depth_max if self.valid else None,
+            "depth_valid_fraction": float(self.valid / self.pixels) if self.pixels else 0.0,
+        }
+
+
+def _check_capture(
+    listed: CaptureListing | None,
+    options: CaptureOptions,
+    problems: list[Problem],
+    summary: dict[str, Any],
+) -> FrameSizes | None:
+    """Read the frames one by one; returns the frame sizes masks are checked against (None
+    when the capture could not even be listed)."""
+    if listed is None:
+        return None
+    found = list(listed.listing.problems)
+    tally = _CaptureTally(listed.layout)
+    sizes: dict[str, tuple[int, int] | None] = dict.fromkeys(listed.listing.unlisted)
+    for spec, frame, frame_problems in iter_frames(listed.listing, listed.folder, options):
+        found.extend(frame_problems)
+        sizes[spec.name] = None if frame is None else (frame.width, frame.height)
+        if frame is not None:
+            found.extend(tally.add(frame))
+    if not found and not tally.frames:
+        found.append(Problem(listed.shown, "capture is empty: no frames found"))
+    if not found:
+        summary["capture"] = tally.summary()
+    problems.extend(found)
+    return sizes
+
+
+# --------------------------------------------------------------------------- masks
+
+
+def _check_masks(
+    paths: InputPaths,
+    frame_sizes: FrameSizes | None,
+    problems: list[Problem],
+    summary: dict[str, Any],
+) -> None:
+    if paths.agnostic_masks is not None:
+        agnostic = _attempt(problems, lambda: read_agnostic_masks(_need(paths.agnostic_masks)))
+        if agnostic is not None:
+            problems += _check_against_frames(agnostic, _agnostic_size, frame_sizes)
+            summary["agnostic_masks"] = summarise_agnostic(agnostic)
+    if paths.semantic_masks is not None or paths.vocabulary is not None:
+        vocabulary = _check_semantic(paths, problems, summary, frame_sizes)
+    else:
+        vocabulary = None
+    if paths.ground_truth is not None:
+        summary["ground_truth"] = _check_ground_truth(paths.ground_truth, vocabulary, problems)
+
+
+class _SemanticTally:
+    """A class-map summary built map by map."""
+
+    def __init__(self, vocabulary: Vocabulary) -> None:
+        self.vocabulary = vocabulary
+        self.counts = np.zeros(len(vocabulary), dtype=np.int64)
+        self.pixels = 0
+        self.frames = 0
+
+    def add(self, semantic: SemanticMap) -> None:
+        n = len(self.vocabulary)
+        labelled = semantic.classes[semantic.classes >= 0]
+        self.counts += np.bincount(labelled.ravel(), minlength=n)[:n]
+        self.pixels += int(semantic.classes.size)
+        self.frames += 1
+
+    def summary(self) -> dict[str, Any]:
+        """The same fields as :func:`summarise_semantic`."""
+        return {
+            "frames": self.frames,
+            "vocabulary_size": len(self.vocabulary),
+            "classes_present": [self.vocabulary.names[i] for i in np.flatnonzero(self.counts)],
+            "labelled_fraction": float(self.counts.sum() / self.pixels) if self.pixels else 0.0,
+        }
+
+
 def _check_semantic(
     paths: InputPaths,
     problems: list[Problem],
     summary: dict[str, Any],
-    frame_sizes: Mapping[str, tuple[int, int]] | None,
+    frame_sizes: FrameSizes | None,
 ) -> Vocabulary | None:
     if paths.vocabulary is None:
         problems.append(Problem("--vocabulary", "semantic masks need a vocabulary file"))
@@ -118,11 +292,20 @@ def _check_semantic(
     vocabulary = _attempt(problems, lambda: read_vocabulary(_need(paths.vocabulary)))
     if vocabulary is None or paths.semantic_masks is None:
         return vocabulary
-    folder = paths.semantic_masks
-    maps = _attempt(problems, lambda: read_semantic_maps(folder, vocabulary))
-    if maps is not None:
-        problems += _check_against_frames(maps, _semantic_size, frame_sizes)
-        summary["semantic_masks"] = summarise_semantic(maps, vocabulary)
+    tally = _SemanticTally(vocabulary)
+    read_problems: list[Problem] = []
+    try:
+        for item in iter_semantic_maps(paths.semantic_masks, vocabulary):
+            if isinstance(item, Problem):
+                read_problems.append(item)
+                continue
+            tally.add(item)
+            problems += _check_against_frames({item.name: item}, _semantic_size, frame_sizes)
+    except InputError as error:  # the folder itself is missing
+        read_problems.extend(error.problems)
+    problems += read_problems
+    if not read_problems:
+        summary["semantic_masks"] = tally.summary()
     return vocabulary
 
 
@@ -147,9 +330,10 @@ def _semantic_size(semantic: SemanticMap) -> tuple[tuple[int, int], str]:
 def _check_against_frames(
     per_frame: Mapping[str, T],
     size_of: Callable[[T], tuple[tuple[int, int], str]],
-    frame_sizes: Mapping[str, tuple[int, int]] | None,
+    frame_sizes: FrameSizes | None,
 ) -> list[Problem]:
-    """Masks must belong to existing frames and have the frame's aspect ratio."""
+    """Masks must belong to listed frames and have the frame's aspect ratio (when the frame
+    could be read)."""
     if frame_sizes is None:
         return []
     out: list[Problem] = []
@@ -158,9 +342,10 @@ def _check_against_frames(
         if name not in frame_sizes:
             out.append(Problem(source or name, f"mask for frame {name!r}, which the capture lacks"))
             continue
-        frame_w, frame_h = frame_sizes[name]
-        if width == 0 or height == 0:  # a frame with an empty mask list has no size
+        frame_size = frame_sizes[name]
+        if frame_size is None or width == 0 or height == 0:  # unread frame / empty mask list
             continue
+        frame_w, frame_h = frame_size
         if abs(width / height - frame_w / frame_h) > ASPECT_TOLERANCE * frame_w / frame_h:
             out.append(
                 Problem(

@@ -9,6 +9,7 @@ from fastapi.responses import StreamingResponse
 
 from service import artifacts
 from service.deps import StateDep, TenantDep
+from service.jobs import etag_matches
 from service.problems import ApiProblem, problem_responses
 from service.schemas import ArtifactPublic, ArtifactsPublic
 from worker.contract import JobPaths
@@ -41,8 +42,25 @@ def list_artifacts(job_id: str, state: StateDep, tenant: TenantDep) -> Artifacts
     return ArtifactsPublic(artifacts=items)
 
 
+DOWNLOAD = "/{job_id}/artifacts/{name:path}"
+RangeHeader = Annotated[str | None, Header(alias="Range")]
+IfRange = Annotated[str | None, Header()]
+IfNoneMatch = Annotated[str | None, Header()]
+
+
+def _find(job_id: str, name: str, state: StateDep, tenant: str) -> artifacts.Artifact:
+    found = artifacts.find_artifact(_output(job_id, state, tenant).output, name)
+    if found is None:
+        raise ApiProblem(404, f"job {job_id} has no artifact {name!r}", slug="not-found")
+    return found
+
+
+def _headers(found: artifacts.Artifact) -> dict[str, str]:
+    return {"ETag": found.etag, "Accept-Ranges": "bytes", "Cache-Control": "private"}
+
+
 @router.get(
-    "/{job_id}/artifacts/{name:path}",
+    DOWNLOAD,
     response_class=StreamingResponse,
     responses={
         200: {"content": {"application/octet-stream": {}}, "description": "the file"},
@@ -56,17 +74,15 @@ def download_artifact(
     name: str,
     state: StateDep,
     tenant: TenantDep,
-    range_header: Annotated[str | None, Header(alias="Range")] = None,
-    if_range: Annotated[str | None, Header()] = None,
-    if_none_match: Annotated[str | None, Header()] = None,
+    range_header: RangeHeader = None,
+    if_range: IfRange = None,
+    if_none_match: IfNoneMatch = None,
 ) -> Response:
-    """Download one artifact; honours ``Range: bytes=a-b``, ``If-Range`` and ``If-None-Match``."""
-    paths = _output(job_id, state, tenant)
-    found = artifacts.find_artifact(paths.output, name)
-    if found is None:
-        raise ApiProblem(404, f"job {job_id} has no artifact {name!r}", slug="not-found")
-    headers = {"ETag": found.etag, "Accept-Ranges": "bytes", "Cache-Control": "private"}
-    if if_none_match and found.etag in [t.strip() for t in if_none_match.split(",")]:
+    """Download one artifact; honours ``Range: bytes=a-b``, ``If-Range`` and ``If-None-Match``
+    (``*`` and weak tags match)."""
+    found = _find(job_id, name, state, tenant)
+    headers = _headers(found)
+    if etag_matches(if_none_match, found.etag):
         return Response(status_code=304, headers=headers)
     use_range = if_range is None or if_range.strip() == found.etag
     span = artifacts.parse_range(range_header, found.size) if use_range else None
@@ -79,3 +95,29 @@ def download_artifact(
     headers["Content-Length"] = str(end - start + 1)
     body = artifacts.read_bytes(found.path, start, end)
     return StreamingResponse(body, status_code=206, media_type=found.media_type, headers=headers)
+
+
+@router.head(
+    DOWNLOAD,
+    response_class=Response,
+    responses={
+        200: {"description": "the headers of the download, no body"},
+        304: {"description": "Not Modified"},
+        **problem_responses(401, 404),
+    },
+)
+def artifact_headers(
+    job_id: str,
+    name: str,
+    state: StateDep,
+    tenant: TenantDep,
+    if_none_match: IfNoneMatch = None,
+) -> Response:
+    """The headers a ``GET`` of the whole artifact sends (``Content-Length``, ``ETag``,
+    ``Accept-Ranges``, ``Content-Type``), without a body; ``Range`` is ignored (RFC 9110 14.2)."""
+    found = _find(job_id, name, state, tenant)
+    headers = _headers(found)
+    if etag_matches(if_none_match, found.etag):
+        return Response(status_code=304, headers=headers)
+    headers["Content-Length"] = str(found.size)
+    return Response(status_code=200, media_type=found.media_type, headers=headers)

@@ -2,7 +2,9 @@
 
 Events come from the job store (``id:`` is the job's event sequence number), so a client that
 reconnects with ``Last-Event-ID: n`` receives every event after ``n``. The stream ends after
-the ``completed`` event; a comment line is sent every 15 s to keep proxies from closing it.
+the ``completed`` event, or cleanly after ``max_stream_s`` (a comment line says so; clients
+reconnect with ``Last-Event-ID``); a comment line is sent every 15 s to keep proxies from
+closing it. A tenant may hold ``max_streams_per_tenant`` streams per API process (429 past it).
 """
 
 from __future__ import annotations
@@ -11,13 +13,14 @@ import asyncio
 import json
 import time
 from collections.abc import AsyncIterator
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
+from starlette.types import Receive, Scope, Send
 
-from service.deps import AppState, StateDep, TenantDep
+from service.deps import AppState, StateDep, StreamSlots, TenantDep
 from service.models import Event
 from service.problems import ApiProblem, problem_responses
 
@@ -32,8 +35,15 @@ def format_event(event: Event) -> str:
 
 
 async def stream_events(state: AppState, job_id: str, after: int) -> AsyncIterator[str]:
+    """The events of ``job_id`` after ``after``, until ``completed``, the job's deletion or
+    ``max_stream_s``. While nothing happens the pause between polls doubles from
+    ``poll_interval_s`` up to ``stream_poll_max_s``; the job row is read only with each
+    keep-alive (to notice a deletion)."""
+    settings = state.settings
     yield "retry: 2000\n\n"
-    last_sent = time.monotonic()
+    started = last_sent = time.monotonic()
+    pause = settings.poll_interval_s
+    longest = max(settings.poll_interval_s, settings.stream_poll_max_s)
     while True:
         events = await run_in_threadpool(state.store.events_after, job_id, after)
         for event in events:
@@ -41,16 +51,37 @@ async def stream_events(state: AppState, job_id: str, after: int) -> AsyncIterat
             yield format_event(event)
             if event.type == "completed":
                 return
+        now = time.monotonic()
+        if events:
+            last_sent, pause = now, settings.poll_interval_s
+        elif now - last_sent >= KEEPALIVE_S:
+            if await run_in_threadpool(state.store.get_job, job_id) is None:
+                return  # deleted while streaming
+            yield ": keepalive\n\n"
+            last_sent = now
+        if now - started >= settings.max_stream_s:
+            yield f": stream lifetime reached; reconnect with Last-Event-ID: {after}\n\n"
+            return
+        await asyncio.sleep(pause)
         if not events:
-            job = await run_in_threadpool(state.store.get_job, job_id)
-            if job is None:  # deleted while streaming
-                return
-            if time.monotonic() - last_sent > KEEPALIVE_S:
-                yield ": keepalive\n\n"
-                last_sent = time.monotonic()
-            await asyncio.sleep(state.settings.poll_interval_s)
-        else:
-            last_sent = time.monotonic()
+            pause = min(2 * pause, longest)
+
+
+class SlotStreamingResponse(StreamingResponse):
+    """A stream that holds one of the tenant's stream slots until it ends, however it ends
+    (completed, lifetime reached, client gone, cancelled)."""
+
+    def __init__(
+        self, content: AsyncIterator[str], slots: StreamSlots, tenant: str, **kwargs: Any
+    ) -> None:
+        super().__init__(content, **kwargs)
+        self._slots, self._tenant = slots, tenant
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            self._slots.release(self._tenant)
 
 
 @router.get(
@@ -58,7 +89,7 @@ async def stream_events(state: AppState, job_id: str, after: int) -> AsyncIterat
     response_class=StreamingResponse,
     responses={
         200: {"content": {"text/event-stream": {}}, "description": "event stream"},
-        **problem_responses(401, 404, 422),
+        **problem_responses(401, 404, 422, 429),
     },
 )
 async def job_events(
@@ -73,8 +104,20 @@ async def job_events(
     job = await run_in_threadpool(state.store.get_job, job_id, tenant)
     if job is None:
         raise ApiProblem(404, f"no job {job_id!r}", slug="not-found", job_id=job_id)
-    return StreamingResponse(
+    cap = state.settings.max_streams_per_tenant
+    if not state.streams.acquire(tenant, cap):
+        raise ApiProblem(
+            429,
+            f"{cap} event streams are already open for this tenant "
+            "(DCSEG_MAX_STREAMS_PER_TENANT); close one, or poll GET /v1/jobs/{id}",
+            slug="too-many-streams",
+            headers={"Retry-After": str(state.settings.retry_after_s)},
+            job_id=job_id,
+        )
+    return SlotStreamingResponse(
         stream_events(state, job_id, start),
+        state.streams,
+        tenant,
         media_type="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
     )

@@ -9,10 +9,12 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, Query, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import IntegrityError
 
 from dcseg.errors import InputError
 from dcseg.options import build_config, check_size
 from service.deps import AppState, StateDep, TenantDep
+from service.idempotency import IdempotencyKeyHeader, idempotent
 from service.jobs import (
     decode_page_token,
     encode_page_token,
@@ -25,21 +27,12 @@ from service.jobs import (
 from service.models import Job
 from service.problems import ApiProblem, problem_responses
 from service.schemas import JobCreate, JobPublic, JobsPublic, JobStatus
-from service.store import Conflict, Cursor, new_id
+from service.store import Conflict, Cursor, TooManyJobs, new_id
 from worker.contract import TERMINAL, JobPaths
 
 logger = logging.getLogger(__name__)
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
-
-IdempotencyKey = Annotated[
-    str | None,
-    Header(
-        alias="Idempotency-Key",
-        max_length=255,
-        description="Same key + same body replays the first response (per tenant).",
-    ),
-]
 
 
 def _not_found(job_id: str) -> ApiProblem:
@@ -55,7 +48,7 @@ def _job_response(state: AppState, job: Job, status_code: int = 200) -> JSONResp
 
 
 def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
-    """Check the inputs and the tenant's cap, then insert the queued job."""
+    """Check the inputs, then insert the queued job within the tenant's cap."""
     upload_id = body.upload_id
     if body.parent_job_id is not None:
         parent = state.store.get_job(body.parent_job_id, tenant)
@@ -71,14 +64,6 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
     if upload is None:
         raise ApiProblem(404, f"no upload {upload_id!r}", slug="not-found")
     check_options(body, upload.summary)
-    active = state.store.count_active(tenant)
-    if active >= state.settings.max_running_jobs_per_tenant:
-        raise ApiProblem(
-            429,
-            f"{active} unfinished jobs; the limit is {state.settings.max_running_jobs_per_tenant}",
-            slug="too-many-jobs",
-            headers={"Retry-After": "30"},
-        )
     config = {"preset": body.preset, "options": body.options.stored()}
     job = Job(
         id=new_id(),
@@ -90,7 +75,24 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
         event_seq=0,
         message="queued",
     )
-    return state.store.create_job(job)
+    return _insert_capped(state, job)
+
+
+def _insert_capped(state: AppState, job: Job) -> Job:
+    """Insert the job unless its tenant is at its cap (checked in the insert's transaction)."""
+    try:
+        return state.store.create_job(job, max_active=state.settings.max_running_jobs_per_tenant)
+    except TooManyJobs as full:
+        raise ApiProblem(
+            429, str(full), slug="too-many-jobs", headers={"Retry-After": "30"}
+        ) from None
+    except IntegrityError:
+        if state.store.get_upload(job.upload_id, job.tenant_id) is not None:
+            raise
+        # deleted (or expired) since the check in _new_job: the job's foreign key refused it
+        raise ApiProblem(
+            404, f"no upload {job.upload_id!r} (it was deleted)", slug="not-found"
+        ) from None
 
 
 def check_options(body: JobCreate, summary: dict[str, Any]) -> None:
@@ -134,11 +136,6 @@ def _submit(state: AppState, tenant: str, body: JobCreate) -> JSONResponse:
     return response
 
 
-def _replay(status_code: int, stored: dict[str, Any]) -> JSONResponse:
-    headers = {**stored["headers"], "Idempotent-Replayed": "true"}
-    return JSONResponse(stored["body"], status_code=status_code, headers=headers)
-
-
 @router.post(
     "",
     status_code=202,
@@ -146,43 +143,17 @@ def _replay(status_code: int, stored: dict[str, Any]) -> JSONResponse:
     responses=problem_responses(400, 401, 404, 409, 422, 429, 503),
 )
 def create_job(
-    body: JobCreate, state: StateDep, tenant: TenantDep, idempotency_key: IdempotencyKey = None
+    body: JobCreate,
+    state: StateDep,
+    tenant: TenantDep,
+    idempotency_key: IdempotencyKeyHeader = None,
 ) -> Response:
     """Queue a pipeline run; poll the job at ``Location`` (or stream its events)."""
-    if idempotency_key is None:
-        return _submit(state, tenant, body)
     digest = request_hash(body.model_dump(mode="json"))
-    outcome = state.store.idempotency_begin(tenant, idempotency_key, digest)
-    if outcome.kind == "mismatch":
-        raise ApiProblem(
-            422, "Idempotency-Key was used with a different body", slug="idempotency-mismatch"
-        )
-    if outcome.kind == "in_flight":
-        raise ApiProblem(
-            409, "a request with this Idempotency-Key is in progress", slug="idempotency-in-flight"
-        )
-    if outcome.kind == "replay":
-        assert outcome.status_code is not None and outcome.response is not None
-        return _replay(outcome.status_code, outcome.response)
-    try:
-        response = _submit(state, tenant, body)
-    except BaseException:
-        state.store.idempotency_release(tenant, idempotency_key)
-        raise
-    stored = {"body": _json_body(response), "headers": _replay_headers(response)}
-    state.store.idempotency_finish(tenant, idempotency_key, response.status_code, stored)
-    return response
-
-
-def _json_body(response: JSONResponse) -> Any:
-    import json
-
-    return json.loads(bytes(response.body))
-
-
-def _replay_headers(response: Response) -> dict[str, str]:
-    keep = ("location", "operation-location", "etag")
-    return {k: v for k, v in response.headers.items() if k in keep}
+    with idempotent(state, tenant, idempotency_key, digest) as request:
+        if request.replay is not None:
+            return request.replay
+        return request.keep(_submit(state, tenant, body))
 
 
 @router.get("", response_model=JobsPublic, responses=problem_responses(400, 401, 422))

@@ -1,15 +1,20 @@
-"""``POST /v1/uploads`` (a capture archive, streamed) and ``GET /v1/uploads/{id}``."""
+"""``POST /v1/uploads`` (a capture archive, streamed, idempotent), ``GET`` and ``DELETE``."""
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
 
 from service import uploads
-from service.deps import StateDep, TenantDep
+from service.deps import AppState, StateDep, TenantDep
+from service.idempotency import IdempotencyKeyHeader, idempotent_async
 from service.models import Upload
 from service.problems import ApiProblem, problem_responses
 from service.schemas import UploadLinks, UploadPublic
@@ -44,23 +49,7 @@ def upload_public(upload: Upload) -> UploadPublic:
     )
 
 
-@router.post(
-    "",
-    status_code=201,
-    response_model=UploadPublic,
-    openapi_extra=_BODY,
-    responses=problem_responses(400, 401, 413, 415, 422, 429),
-)
-async def create_upload(
-    request: Request,
-    response: Response,
-    state: StateDep,
-    tenant: TenantDep,
-    sha256: Annotated[str | None, Query(description="expected SHA-256 (hex) of the body")] = None,
-    repr_digest: Annotated[str | None, Header(description="RFC 9530: sha-256=:<b64>:")] = None,
-    content_length: Annotated[int | None, Header()] = None,
-) -> UploadPublic:
-    """Upload a capture archive; it is validated before it is accepted (422 lists problems)."""
+def _media_type(request: Request) -> str:
     content_type = uploads.media_type(request.headers.get("content-type"))
     if content_type not in uploads.ACCEPTED_TYPES:
         raise ApiProblem(
@@ -69,46 +58,115 @@ async def create_upload(
             f"({', '.join(sorted(uploads.ACCEPTED_TYPES))})",
             slug="unsupported-media-type",
         )
-    expected = uploads.expected_digest(repr_digest, sha256)
-    limit = state.settings.max_upload_bytes
-    if content_length is not None and content_length > limit:
-        raise uploads.too_large(limit)
-    upload_id = new_id()
-    paths = UploadPaths(state.settings.storage_dir, upload_id)
-    tmp = paths.folder.with_name(f".tmp-{upload_id}")
-    tmp.mkdir(parents=True)
-    try:
-        archive = tmp / "archive"
-        size, digest = await uploads.receive(request.stream(), archive, limit)
-        if expected is not None and expected != digest:
-            raise ApiProblem(
-                422,
-                f"body SHA-256 {digest} does not match the announced {expected}",
-                slug="digest-mismatch",
-            )
-        summary = await run_in_threadpool(
-            uploads.extract_and_validate, archive, tmp / "data", state.settings
-        )
-        archive.unlink()
-        os.rename(tmp, paths.folder)
-    except BaseException:
-        uploads.remove(tmp)
-        raise
-    record = Upload(
-        id=upload_id,
-        tenant_id=tenant,
-        sha256=digest,
-        size=size,
-        content_type=content_type,
-        summary=summary,
+    return content_type
+
+
+def _created(record: Upload) -> JSONResponse:
+    body = upload_public(record).model_dump(mode="json")
+    return JSONResponse(body, status_code=201, headers={"Location": body["links"]["self"]})
+
+
+@dataclass(frozen=True)
+class _Incoming:
+    """An upload being received into its temporary folder."""
+
+    upload_id: str
+    tmp: Path
+    content_type: str
+    expected: str | None
+    """The SHA-256 the client announced, if any."""
+
+
+async def _receive(request: Request, state: AppState, incoming: _Incoming) -> tuple[int, str]:
+    """Stream the body into ``tmp/archive``; 413 past the cap, 422 on a digest mismatch."""
+    size, digest = await uploads.receive(
+        request.stream(), incoming.tmp / "archive", state.settings.max_upload_bytes
     )
+    if incoming.expected is not None and incoming.expected != digest:
+        raise ApiProblem(
+            422,
+            f"body SHA-256 {digest} does not match the announced {incoming.expected}",
+            slug="digest-mismatch",
+        )
+    return size, digest
+
+
+async def _store(request: Request, state: AppState, tmp: Path, record: Upload) -> Upload:
+    """Extract and validate in the pool, check room for it, then move it into place."""
+    pool = uploads.validation_pool(request.app.state, state.settings)
+    summary, stored = await pool.run(uploads.prepare, tmp / "archive", tmp / "data", state.settings)
+    check = partial(uploads.check_room, state.store, state.settings, record.tenant_id)
+    await run_in_threadpool(partial(check, stored, written=True))
+    (tmp / "archive").unlink()
+    folder = UploadPaths(state.settings.storage_dir, record.id).folder
+    os.rename(tmp, folder)
+    record.summary, record.stored_bytes = summary, stored
     try:
-        state.store.add_upload(record)
+        await run_in_threadpool(state.store.add_upload, record)
     except BaseException:
-        uploads.remove(paths.folder)
+        uploads.remove(folder)
         raise
-    response.headers["Location"] = f"/v1/uploads/{upload_id}"
-    return upload_public(record)
+    return record
+
+
+async def _accept(
+    request: Request, state: AppState, tenant: str, incoming: _Incoming, key: str | None
+) -> Response:
+    """Receive, then (unless ``key`` replays an earlier upload) validate and keep it."""
+    size, digest = await _receive(request, state, incoming)
+    request_hash = uploads.upload_request_hash(incoming.content_type, digest)
+    async with idempotent_async(state, tenant, key, request_hash) as idem:
+        if idem.replay is not None:
+            return idem.replay
+        record = Upload(
+            id=incoming.upload_id,
+            tenant_id=tenant,
+            sha256=digest,
+            size=size,
+            content_type=incoming.content_type,
+            summary={},
+        )
+        record = await _store(request, state, incoming.tmp, record)
+        return idem.keep(_created(record))
+
+
+@router.post(
+    "",
+    status_code=201,
+    response_model=UploadPublic,
+    openapi_extra=_BODY,
+    responses=problem_responses(400, 401, 409, 413, 415, 422, 429, 503, 507),
+)
+async def create_upload(
+    request: Request,
+    state: StateDep,
+    tenant: TenantDep,
+    sha256: Annotated[str | None, Query(description="expected SHA-256 (hex) of the body")] = None,
+    repr_digest: Annotated[str | None, Header(description="RFC 9530: sha-256=:<b64>:")] = None,
+    content_length: Annotated[int | None, Header()] = None,
+    idempotency_key: IdempotencyKeyHeader = None,
+) -> Response:
+    """Upload a capture archive; it is validated before it is accepted (422 lists problems).
+    507 when the storage is full or the tenant's quota would be exceeded; 503 with
+    ``Retry-After`` while the server is busy with as many uploads as it takes at once."""
+    content_type = _media_type(request)
+    expected = uploads.expected_digest(repr_digest, sha256)
+    if content_length is not None and content_length > state.settings.max_upload_bytes:
+        raise uploads.too_large(state.settings.max_upload_bytes)
+    with uploads.validation_pool(request.app.state, state.settings).admit():
+        check = partial(uploads.check_room, state.store, state.settings, tenant)
+        await run_in_threadpool(check, content_length or 0)
+        upload_id = new_id()
+        folder = UploadPaths(state.settings.storage_dir, upload_id).folder
+        incoming = _Incoming(
+            upload_id, folder.with_name(f".tmp-{upload_id}"), content_type, expected
+        )
+        try:
+            with uploads.disk_full_as_507():
+                incoming.tmp.mkdir(parents=True)
+                return await _accept(request, state, tenant, incoming, idempotency_key)
+        finally:
+            uploads.remove(incoming.tmp)  # gone already when the upload was kept
 
 
 @router.get("/{upload_id}", response_model=UploadPublic, responses=problem_responses(401, 404))

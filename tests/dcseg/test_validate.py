@@ -156,9 +156,13 @@ def test_corrupted_variant_fails_with_reason(
 
 
 def test_every_problem_listed_at_once(copy: Path) -> None:
-    # Masks are cross-checked against frame names only when the capture itself loads, so
-    # combine problems that are each detectable on their own.
-    reasons = [corrupt_image(copy), non_rigid_pose(copy), class_beyond_vocabulary(copy)]
+    # Masks are cross-checked against the listed frame names even when a frame is unreadable.
+    reasons = [
+        corrupt_image(copy),
+        non_rigid_pose(copy),
+        class_beyond_vocabulary(copy),
+        mask_without_frame(copy),
+    ]
     report = validate_inputs(paths_of(copy))
     text = "\n".join(str(p) for p in report.problems)
     for reason in reasons:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 
 import pytest
+from pydantic import SecretStr
 
 from dcseg.cli import main
 from dcseg.cli.serve import is_loopback
@@ -38,15 +39,18 @@ def test_loopback_detection():
 
 def test_settings_from_environment(monkeypatch, tmp_path):
     keys = tmp_path / "keys.txt"
-    keys.write_text("# tenants\ntenant-a:alpha\ntenant-b:beta\n")
+    keys.write_text("# tenants\ntenant-a:alpha-0123456789ab\ntenant-b:beta-0123456789abc\n")
     monkeypatch.setenv("DCSEG_API_KEYS", f"@{keys}")
     monkeypatch.setenv("DCSEG_STAGE_TIME_LIMIT_S", '{"reconstruct": 60}')
     settings = Settings()
-    assert settings.parsed_api_keys() == {"alpha": "tenant-a", "beta": "tenant-b"}
+    assert settings.parsed_api_keys() == {
+        "alpha-0123456789ab": "tenant-a",
+        "beta-0123456789abc": "tenant-b",
+    }
     assert settings.stage_time_limit_s == {"reconstruct": 60.0}
     assert settings.db_url == f"sqlite:///{tmp_path.resolve() / 'dcseg.db'}"
     with pytest.raises(ValueError, match="tenant:key"):
-        Settings(api_keys="no-colon").parsed_api_keys()
+        Settings(api_keys=SecretStr("no-colon")).parsed_api_keys()
 
 
 def test_client_verbs_do_not_log_every_request(caplog):

@@ -283,5 +283,6 @@ def test_no_keys_means_local_tenant(tmp_path):
     from service.main import create_app
     from tests.service.conftest import TestClient
 
-    with TestClient(create_app(make_settings(tmp_path, api_keys=""))) as local:
+    app = create_app(make_settings(tmp_path, api_keys=""))
+    with TestClient(app, base_url="http://127.0.0.1", client=("127.0.0.1", 1)) as local:
         assert local.get("/v1/jobs").status_code == 200

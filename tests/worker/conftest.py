@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import pytest
+from pydantic import SecretStr
 
 from service.models import Job, Upload
 from service.settings import Settings
@@ -29,7 +30,7 @@ def settings(tmp_path: Path) -> Settings:
         storage_dir=tmp_path / "data",
         database_url=None,
         broker_url=None,
-        api_keys="",
+        api_keys=SecretStr(""),
         heartbeat_s=0.1,
         poll_interval_s=0.05,
     )

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import os
+import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from worker.execute import StageContext, StageOutcome
+from worker.execute import Stage, StageContext, StageOutcome
 
 
 @dataclass
@@ -57,3 +60,43 @@ class RecordingQueue:
 
     def mark_intact(self) -> None:
         self.intact = True
+
+
+@dataclass
+class SilentStage:
+    """Never reports progress: sleeps ``seconds`` in one call (a stage stuck in native code),
+    or until ``release`` is set."""
+
+    name: str
+    seconds: float = 3600.0
+    release: threading.Event | None = None
+    runs: int = 0
+
+    def key(self, config: dict[str, Any]) -> dict[str, Any]:
+        return {}
+
+    def run(self, ctx: StageContext, out: Path) -> StageOutcome:
+        self.runs += 1
+        if self.release is not None:
+            self.release.wait(self.seconds)
+        else:
+            time.sleep(self.seconds)
+        (out / "late.txt").write_bytes(b"too late")
+        return StageOutcome("done", f"{self.name}: done")
+
+
+def stuck_stages() -> list[Stage]:
+    """A finished ``validate`` then a stage that never returns nor reports progress (the
+    embedded worker and the Celery test app import this by name)."""
+    return [FakeStage("validate"), SilentStage("stuck")]
+
+
+def slow_stages() -> list[Stage]:
+    """``validate``, then ``slow``: ``DCSEG_TEST_SLOW_STEPS`` (default 1000) progress reports
+    0.1 s apart."""
+    steps = int(os.environ.get("DCSEG_TEST_SLOW_STEPS", "1000"))
+    return [FakeStage("validate"), FakeStage("slow", steps=steps, on_step=_nap)]
+
+
+def _nap(step: int) -> None:
+    time.sleep(0.1)

@@ -52,7 +52,7 @@ def test_redelivered_job_resumes_after_last_finished_stage(store, settings):
     assert execute_job(job_id, store, settings, stages=[one, two]) == "succeeded"
     assert one.runs == 1 and two.runs == 2
     job = store.get_job(job_id)
-    assert job.attempts == 2 and job.status == "succeeded"
+    assert job.attempts == 1 and job.status == "succeeded"  # the interrupted run is no crash
     names = [a.name for a in list_artifacts(JobPaths(settings.storage_dir, job_id).output)]
     assert names == ["one/out.txt", "two/out.txt"]
 

@@ -76,7 +76,7 @@ def test_celery_settings_and_task_adapter(monkeypatch):
     assert conf.task_soft_time_limit < conf.task_time_limit
     calls = []
 
-    def fake_execute(job_id: str, store: Any, settings: Any) -> str:
+    def fake_execute(job_id: str, store: Any, settings: Any, **options: Any) -> str:
         calls.append(job_id)
         return "succeeded"
 

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import logging
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from dcseg.config import CaptureOptions
@@ -27,7 +29,7 @@ from dcseg.io.captures import manifest, nerfstudio, replica, scannet, sevenscene
 from dcseg.io.captures.common import Listing, load_capture
 from dcseg.types import Capture
 
-__all__ = ["LAYOUTS", "detect_layout", "read_capture"]
+__all__ = ["LAYOUTS", "CaptureListing", "detect_layout", "list_capture", "read_capture"]
 
 logger = logging.getLogger(__name__)
 
@@ -74,11 +76,61 @@ def _detect(folder: Path, shown: str) -> str:
     )
 
 
-def _read_folder(folder: Path, options: CaptureOptions, shown: str) -> Capture:
+@dataclass(frozen=True)
+class CaptureListing:
+    """A capture's frames as listed by its layout, before any image is decoded.
+
+    Attributes:
+        folder: the capture folder (a temporary extraction folder for archives).
+        shown: how messages name the capture (the path given, e.g. the archive).
+        layout: the detected layout name.
+        listing: the frame specs and the problems found while listing them.
+    """
+
+    folder: Path
+    shown: str
+    layout: str
+    listing: Listing
+
+
+def _list_folder(folder: Path, options: CaptureOptions, shown: str) -> CaptureListing:
     layout = _detect(folder, shown)
     logger.debug("%s: detected the %s layout", shown, layout)
-    listing = LAYOUTS[layout][1](folder, options)
-    return load_capture(listing, folder, layout, options, shown=shown)
+    return CaptureListing(folder, shown, layout, LAYOUTS[layout][1](folder, options))
+
+
+@contextmanager
+def list_capture(
+    path: str | Path, options: CaptureOptions = _DEFAULT_OPTIONS
+) -> Iterator[CaptureListing]:
+    """List a capture's frames without decoding any image.
+
+    An archive is extracted safely into a temporary folder that lives as long as the block.
+
+    Args:
+        path: a capture folder or an archive of one.
+        options: capture options (layouts read intrinsics and stride-independent settings).
+
+    Yields:
+        The listing; load its frames with :func:`dcseg.io.captures.common.iter_frames` or
+        :func:`dcseg.io.captures.common.load_capture`.
+
+    Raises:
+        InputError: the path is missing, not a capture, or its layout cannot be listed.
+    """
+    path = Path(path)
+    if path.is_dir():
+        yield _list_folder(path, options, str(path))
+        return
+    if not path.exists():
+        raise InputError.single(str(path), "does not exist")
+    if not is_archive(path):
+        raise InputError.single(
+            str(path), "not a folder or a .zip/.tar/.tar.gz/.tgz archive of one"
+        )
+    with tempfile.TemporaryDirectory(prefix="dcseg-capture-") as tmp:
+        folder = safe_extract(path, Path(tmp))
+        yield _list_folder(folder, options, str(path))
 
 
 def read_capture(path: str | Path, options: CaptureOptions = _DEFAULT_OPTIONS) -> Capture:
@@ -99,15 +151,7 @@ def read_capture(path: str | Path, options: CaptureOptions = _DEFAULT_OPTIONS) -
     Example:
         >>> capture = read_capture("room0/", CaptureOptions(max_frames=10))  # doctest: +SKIP
     """
-    path = Path(path)
-    if path.is_dir():
-        return _read_folder(path, options, str(path))
-    if not path.exists():
-        raise InputError.single(str(path), "does not exist")
-    if not is_archive(path):
-        raise InputError.single(
-            str(path), "not a folder or a .zip/.tar/.tar.gz/.tgz archive of one"
+    with list_capture(path, options) as listed:
+        return load_capture(
+            listed.listing, listed.folder, listed.layout, options, shown=listed.shown
         )
-    with tempfile.TemporaryDirectory(prefix="dcseg-capture-") as tmp:
-        folder = safe_extract(path, Path(tmp))
-        return _read_folder(folder, options, str(path))

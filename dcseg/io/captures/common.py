@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -89,11 +89,14 @@ class Listing:
         specs: the frames that could be listed.
         problems: everything wrong found so far (reported together with loading problems).
         resample_depth: whether depth may come at another resolution than colour.
+        unlisted: names of frames the layout names but could not list (a part is missing or
+            its pose is malformed; the problem is in ``problems``).
     """
 
     specs: list[FrameSpec] = field(default_factory=list)
     problems: list[Problem] = field(default_factory=list)
     resample_depth: bool = False
+    unlisted: list[str] = field(default_factory=list)
 
 
 def rel(path: Path, root: Path) -> str:
@@ -114,6 +117,8 @@ def add_if_present(listing: Listing, spec: FrameSpec, root: Path) -> None:
         listing.problems.append(missing(spec.depth, root, "depth", spec.rgb))
     else:
         listing.specs.append(spec)
+        return
+    listing.unlisted.append(spec.name)
 
 
 def frame_number(stem: str) -> int | None:
@@ -199,8 +204,7 @@ def load_capture(
     """
     problems = list(listing.problems)
     frames: list[Frame] = []
-    for spec in select(listing.specs, options):
-        frame, frame_problems = _load_frame(spec, listing.resample_depth, root, options)
+    for _, frame, frame_problems in iter_frames(listing, root, options):
         problems.extend(frame_problems)
         if frame is not None:
             frames.append(frame)
@@ -211,6 +215,25 @@ def load_capture(
         raise InputError(problems)
     logger.info("read %d frames of a %s capture from %s", len(frames), layout, shown)
     return Capture(frames=tuple(frames), layout=layout, root=shown)
+
+
+def iter_frames(
+    listing: Listing, root: Path, options: CaptureOptions
+) -> Iterator[tuple[FrameSpec, Frame | None, list[Problem]]]:
+    """Read the selected frames one at a time (for checks that must not hold them all).
+
+    Args:
+        listing: the layout's frames.
+        root: the capture folder.
+        options: stride, max_frames, size and depth_trunc.
+
+    Yields:
+        ``(spec, frame, problems)`` per selected frame; ``frame`` is None when it could not be
+        read (``problems`` says why). The listing's own problems are not repeated.
+    """
+    for spec in select(listing.specs, options):
+        frame, problems = _load_frame(spec, listing.resample_depth, root, options)
+        yield spec, frame, problems
 
 
 def _load_frame(
@@ -282,6 +305,7 @@ def _read_npy(path: Path, shown: str) -> NDArray[Any]:
             shown,
             f"depth array has {mapped.size:,} values, above the limit of {images.MAX_PIXELS:,}",
         )
+    images.charge_pixels(int(mapped.size), shown)
     return np.array(mapped)
 
 

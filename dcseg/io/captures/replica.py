@@ -115,6 +115,8 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
         spec = _spec(root, rgb, match.group(1), rows, camera, scale, listing.problems)
         if spec is not None:
             listing.specs.append(spec)
+        else:
+            listing.unlisted.append(rgb.stem)
     return listing
 
 

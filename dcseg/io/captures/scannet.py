@@ -80,13 +80,16 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
         depth, pose = root / "depth" / f"{rgb.stem}.png", root / "pose" / f"{rgb.stem}.txt"
         if not depth.is_file():
             listing.problems.append(missing(depth, root, "depth", rgb))
+            listing.unlisted.append(rgb.stem)
         if not pose.is_file():
             listing.problems.append(missing(pose, root, "pose", rgb))
+            listing.unlisted.append(rgb.stem)
             continue
         try:
             c2w = read_matrix_txt(pose, root)
         except InputError as exc:
             listing.problems.extend(exc.problems)
+            listing.unlisted.append(rgb.stem)
             continue
         if not np.all(np.isfinite(c2w)):
             skipped.append(rel(pose, root))

@@ -102,6 +102,8 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
         spec = _spec(root, rgb, camera, listing.problems)
         if spec is not None:
             listing.specs.append(spec)
+        else:
+            listing.unlisted.append(rel(rgb.with_name(_stem(rgb)), root))
     return listing
 
 

@@ -1,0 +1,27 @@
+"""Problems caused by a resource limit (a cap on entries, bytes or pixels), told apart from
+other input problems so that callers can name the setting behind the limit."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from dcseg.errors import InputError, Problem
+
+__all__ = ["LimitProblem", "limit_error"]
+
+
+@dataclass(frozen=True)
+class LimitProblem(Problem):
+    """An input refused because it exceeds a limit.
+
+    Attributes:
+        limit: the keyword argument that sets the limit (e.g. ``"max_entries"`` of
+            :func:`dcseg.io.archive.safe_extract`), so that a service can name its own setting.
+    """
+
+    limit: str = ""
+
+
+def limit_error(path: str, reason: str, limit: str) -> InputError:
+    """An :class:`InputError` holding one :class:`LimitProblem`."""
+    return InputError([LimitProblem(path, reason, limit)])

@@ -1,0 +1,371 @@
+"""Issue 17, uploads: storage quotas, free space and ENOSPC (507), upload expiry, a bounded
+validation pool that leaves ``/healthz`` alone, idempotent uploads and expiring keys, and the
+delete-upload / create-job race."""
+
+from __future__ import annotations
+
+import errno
+import json
+import shutil
+import threading
+from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from datetime import timedelta
+from pathlib import Path
+from typing import IO, Any
+
+import anyio.to_thread
+import pytest
+from sqlalchemy import func, select, update
+
+import dcseg.io.archive
+from service import uploads as service_uploads
+from service.main import create_app
+from service.models import IdempotencyKey, Job, Upload, utcnow
+from service.settings import Settings
+from tests.service.conftest import (
+    AUTH_A,
+    AUTH_B,
+    TAR,
+    TestClient,
+    assert_problem,
+    make_settings,
+    state_of,
+    wait_for,
+)
+from worker.contract import JobPaths
+
+BOUND_S = 60.0
+"""Upper bound on waits, so a regression fails instead of hanging (not a timing assert)."""
+
+
+def _nothing_stored(client: TestClient) -> None:
+    state = state_of(client)
+    folder = state.settings.storage_dir / "uploads"
+    assert not folder.exists() or list(folder.iterdir()) == []
+    with state.store.session() as s:
+        assert s.scalar(select(func.count()).select_from(Upload)) == 0
+
+
+@pytest.fixture
+def make_client(tmp_path: Path) -> Iterator[Any]:
+    """``make_client(**settings)``: a started TestClient with those setting overrides."""
+    stack: list[TestClient] = []
+
+    def make(**overrides: Any) -> TestClient:
+        client = TestClient(create_app(make_settings(tmp_path, **overrides)))
+        client.__enter__()
+        stack.append(client)
+        return client
+
+    yield make
+    for client in reversed(stack):
+        client.__exit__(None, None, None)
+
+
+def _upload(client: TestClient, body: bytes, **headers: str) -> Any:
+    return client.post("/v1/uploads", content=body, headers={**AUTH_A, **TAR, **headers})
+
+
+# ----- defect 1: quotas, free space, ENOSPC, expiry -----
+
+
+def test_enospc_while_receiving_answers_507_and_stores_nothing(client, scene_tar, monkeypatch):
+    """Defect: a full disk while the body is written must answer 507 with nothing left."""
+
+    def full(out: IO[bytes], data: bytes) -> None:
+        out.write(data[: len(data) // 2])
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(service_uploads, "write_chunk", full, raising=False)
+    body = assert_problem(_upload(client, scene_tar), 507)
+    assert body["type"].endswith("insufficient-storage")
+    _nothing_stored(client)
+
+
+def test_enospc_during_extraction_answers_507_not_corrupt_archive(client, scene_tar, monkeypatch):
+    """Defect: "a full disk during extraction answers 422 corrupt archive"; map ENOSPC to 507
+    and keep the store consistent."""
+    real_copy = dcseg.io.archive._copy
+    calls = [0]
+
+    def copy_then_fill(source: Any, target: Path, name: str, budget: Any) -> None:
+        calls[0] += 1
+        if calls[0] < 3:
+            return real_copy(source, target, name, budget)
+        target.write_bytes(b"half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(dcseg.io.archive, "_copy", copy_then_fill)
+    body = assert_problem(_upload(client, scene_tar), 507)
+    assert body["type"].endswith("insufficient-storage")
+    assert "corrupt" not in body["detail"]
+    _nothing_stored(client)
+
+
+def test_upload_beyond_the_tenant_quota_answers_507(make_client, scene_tar):
+    """Defect: "No per-tenant storage quota"; an upload past it answers 507 and is not kept."""
+    client = make_client(tenant_storage_quota_bytes=int(len(scene_tar) * 1.5))
+    assert _upload(client, scene_tar).status_code == 201
+    body = assert_problem(_upload(client, scene_tar), 507)
+    assert body["type"].endswith("storage-quota-exceeded")
+    assert body["quota"] == int(len(scene_tar) * 1.5) and 0 < body["used"] <= len(scene_tar)
+    with state_of(client).store.session() as s:
+        assert s.scalar(select(func.count()).select_from(Upload)) == 1
+    assert len(list((state_of(client).settings.storage_dir / "uploads").iterdir())) == 1
+    other = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_B, **TAR})
+    assert other.status_code == 201, other.text  # the quota is per tenant
+
+
+def test_job_outputs_count_toward_the_tenant_quota(make_client, scene_tar):
+    """Defect: the quota counts a tenant's job outputs as well as its uploads."""
+    client = make_client(tenant_storage_quota_bytes=3 * len(scene_tar))
+    upload = _upload(client, scene_tar).json()
+    job = client.post("/v1/jobs", json={"upload_id": upload["id"]}, headers=AUTH_A).json()
+    paths = JobPaths(state_of(client).settings.storage_dir, job["id"])
+    paths.output.mkdir(parents=True)
+    manifest = {"stages": [{"name": "reconstruct", "files": {"a": {"size": 2 * len(scene_tar)}}}]}
+    paths.manifest.write_text(json.dumps(manifest), encoding="utf-8")
+    assert assert_problem(_upload(client, scene_tar), 507)["type"].endswith("quota-exceeded")
+
+
+def test_low_free_space_answers_507_before_reading_the_body(client, scene_tar, monkeypatch):
+    """Defect: "no free-space check"; too little free space answers 507 up front."""
+    real = shutil.disk_usage
+
+    def nearly_full(path: Any) -> Any:
+        usage = real(path)
+        return type(usage)(usage.total, usage.total - 1000, 1000)
+
+    monkeypatch.setattr(shutil, "disk_usage", nearly_full)
+    body = assert_problem(_upload(client, scene_tar), 507)
+    assert body["type"].endswith("insufficient-storage")
+    _nothing_stored(client)
+
+
+def _backdate_uploads(client: TestClient, days: float) -> None:
+    with state_of(client).store.session() as s:
+        s.execute(update(Upload).values(created_at=utcnow() - timedelta(days=days)))
+
+
+def test_unused_uploads_expire_and_uploads_of_jobs_stay(make_client, scene_tar):
+    """Defect: "no upload expiry"; unused old uploads are swept, those of jobs never."""
+    client = make_client(upload_expiry_s=3600.0, housekeeping_interval_s=0.05)
+    unused, used, fresh = (_upload(client, scene_tar).json()["id"] for _ in range(3))
+    job = client.post("/v1/jobs", json={"upload_id": used}, headers=AUTH_A)
+    assert job.status_code == 202, job.text
+    _backdate_uploads(client, days=2)
+    with state_of(client).store.session() as s:
+        s.execute(update(Upload).where(Upload.id == fresh).values(created_at=utcnow()))
+    storage = state_of(client).settings.storage_dir / "uploads"
+    wait_for(lambda: not (storage / unused).exists(), timeout=BOUND_S)  # row first, then files
+    assert_problem(client.get(f"/v1/uploads/{unused}", headers=AUTH_A), 404)
+    for kept in (used, fresh):
+        assert client.get(f"/v1/uploads/{kept}", headers=AUTH_A).status_code == 200
+        assert (storage / kept).is_dir()
+
+
+# ----- defect 2: a bounded validation pool; health never waits on the threadpool -----
+
+
+class _Gate:
+    """A stand-in for ``extract_and_validate`` that holds its thread until released."""
+
+    def __init__(self) -> None:
+        self.entered = 0
+        self.release = threading.Event()
+        self.real = service_uploads.extract_and_validate
+
+    def __call__(self, archive: Path, dest: Path, settings: Settings) -> dict[str, Any]:
+        self.entered += 1
+        assert self.release.wait(BOUND_S), "never released"
+        return self.real(archive, dest, settings)
+
+
+async def _shrink_default_threadpool() -> None:
+    anyio.to_thread.current_default_thread_limiter().total_tokens = 2
+
+
+def test_health_answers_while_upload_validations_saturate_the_pool(
+    make_client, scene_tar, monkeypatch
+):
+    """Defect: "Uploads' extraction and validation share the threadpool with every sync route,
+    including /healthz; ~40 concurrent uploads stall the API. Bounded executor; async health."
+    Here the shared threadpool has 2 threads and 2 uploads hold validation: health still
+    answers, a third upload gets 503 + Retry-After, the two finish once released."""
+    client = make_client(max_upload_validations=1, max_pending_uploads=2)
+    client.portal.call(_shrink_default_threadpool)
+    gate = _Gate()
+    monkeypatch.setattr(service_uploads, "extract_and_validate", gate)
+    tmp_folders = state_of(client).settings.storage_dir / "uploads"
+    with ThreadPoolExecutor(4) as pool:
+        held: list[Future[Any]] = [pool.submit(_upload, client, scene_tar) for _ in range(2)]
+        try:
+            wait_for(lambda: gate.entered >= 1, timeout=BOUND_S)
+            wait_for(lambda: len(list(tmp_folders.glob(".tmp-*"))) == 2, timeout=BOUND_S)
+            health = pool.submit(client.get, "/healthz").result(timeout=BOUND_S)
+            assert health.status_code == 200 and health.json()["status"] == "ok"
+            ready = pool.submit(client.get, "/readyz").result(timeout=BOUND_S)
+            assert ready.status_code == 200, ready.text
+            extra = pool.submit(_upload, client, scene_tar).result(timeout=BOUND_S)
+            body = assert_problem(extra, 503)
+            assert body["type"].endswith("too-many-uploads")
+            assert int(extra.headers["retry-after"]) >= 1
+            assert gate.entered == 1  # the second waits for the single validation thread
+        finally:
+            gate.release.set()
+        assert [f.result(timeout=BOUND_S).status_code for f in held] == [201, 201]
+    assert _upload(client, scene_tar).status_code == 201  # slots were given back
+
+
+# ----- defect 3: idempotent uploads, expiring keys -----
+
+
+def test_upload_honours_idempotency_key(client, scene_tar, scene):
+    """Defect: "uploads ignore Idempotency-Key"; same key + body replays, another body 422."""
+    first = _upload(client, scene_tar, **{"Idempotency-Key": "up-1"})
+    assert first.status_code == 201, first.text
+    again = _upload(client, scene_tar, **{"Idempotency-Key": "up-1"})
+    assert again.status_code == 201 and again.json() == first.json()
+    assert again.headers["idempotent-replayed"] == "true"
+    assert again.headers["location"] == first.headers["location"]
+    other = scene_tar + b"\0" * 1024  # tar padding: a different body of the same capture
+    body = assert_problem(_upload(client, other, **{"Idempotency-Key": "up-1"}), 422)
+    assert body["type"].endswith("idempotency-mismatch")
+    with state_of(client).store.session() as s:
+        assert s.scalar(select(func.count()).select_from(Upload)) == 1
+    uploads_dir = state_of(client).settings.storage_dir / "uploads"
+    assert [p.name for p in uploads_dir.iterdir()] == [first.json()["id"]]
+
+
+def test_upload_with_a_key_in_flight_answers_409(client, scene_tar, monkeypatch):
+    """Defect: uploads honour Idempotency-Key as jobs do: the same key while the first
+    request is still validating answers 409, and the first one still succeeds."""
+    gate = _Gate()
+    monkeypatch.setattr(service_uploads, "extract_and_validate", gate)
+    key = {"Idempotency-Key": "slow"}
+    with ThreadPoolExecutor(1) as pool:
+        first = pool.submit(_upload, client, scene_tar, **key)
+        try:
+            wait_for(lambda: gate.entered == 1, timeout=BOUND_S)
+            second = _upload(client, scene_tar, **key)
+        finally:
+            gate.release.set()
+        assert first.result(timeout=BOUND_S).status_code == 201
+    assert assert_problem(second, 409)["type"].endswith("idempotency-in-flight")
+
+
+def test_idempotency_keys_older_than_the_ttl_are_ignored_and_swept(make_client, scene_tar):
+    """Defect: "Idempotency records never expire"; past the TTL a key is new again and the
+    periodic sweep deletes the record."""
+    client = make_client(idempotency_ttl_s=3600.0, housekeeping_interval_s=3600.0)
+    upload = _upload(client, scene_tar).json()["id"]
+    key = {**AUTH_A, "Idempotency-Key": "job-1"}
+    first = client.post("/v1/jobs", json={"upload_id": upload}, headers=key)
+    assert first.status_code == 202, first.text
+    client.post(f"/v1/jobs/{first.json()['id']}:cancel", headers=AUTH_A)
+    store = state_of(client).store
+    with store.session() as s:
+        s.execute(update(IdempotencyKey).values(created_at=utcnow() - timedelta(hours=2)))
+    second = client.post("/v1/jobs", json={"upload_id": upload, "preset": "paper"}, headers=key)
+    assert second.status_code == 202, second.text  # not 422: the old record has expired
+    assert second.json()["id"] != first.json()["id"]
+    with store.session() as s:
+        s.execute(update(IdempotencyKey).values(created_at=utcnow() - timedelta(hours=2)))
+    assert store.idempotency_sweep(timedelta(hours=1)) == 1
+    with store.session() as s:
+        assert s.scalar(select(func.count()).select_from(IdempotencyKey)) == 0
+
+
+def test_housekeeping_sweeps_expired_idempotency_records(make_client, scene_tar):
+    """Defect: "Idempotency records never expire"; the periodic sweep deletes old ones."""
+    client = make_client(idempotency_ttl_s=3600.0, housekeeping_interval_s=0.05)
+    response = _upload(client, scene_tar, **{"Idempotency-Key": "old"})
+    assert response.status_code == 201
+    store = state_of(client).store
+    with store.session() as s:
+        assert s.scalar(select(func.count()).select_from(IdempotencyKey)) == 1
+        s.execute(update(IdempotencyKey).values(created_at=utcnow() - timedelta(hours=2)))
+
+    def swept() -> bool:
+        with store.session() as s:
+            return s.scalar(select(func.count()).select_from(IdempotencyKey)) == 0
+
+    wait_for(swept, timeout=BOUND_S)
+
+
+# ----- defect 4: deleting an upload while a job is created -----
+
+
+def test_upload_deleted_while_a_job_is_created_answers_404_not_500(client, upload_id, monkeypatch):
+    """Defect: "deleting an upload while a job is created answers 500"; the delete lands
+    between the job's upload check and its insert: a precise 404, nothing half-made."""
+    state = state_of(client)
+    real_create = state.store.create_job
+
+    def delete_first(job: Job) -> Job:
+        assert state.store.delete_upload(upload_id, "tenant-a") is not None
+        service_uploads.remove(state.settings.storage_dir / "uploads" / upload_id)
+        return real_create(job)
+
+    monkeypatch.setattr(state.store, "create_job", delete_first)
+    response = client.post(
+        "/v1/jobs", json={"upload_id": upload_id}, headers={**AUTH_A, "Idempotency-Key": "k"}
+    )
+    body = assert_problem(response, 404)
+    assert upload_id in body["detail"]
+    with state.store.session() as s:
+        assert s.scalar(select(func.count()).select_from(Job)) == 0
+        assert s.scalar(select(func.count()).select_from(IdempotencyKey)) == 0
+    assert client.get(f"/v1/uploads/{upload_id}", headers=AUTH_A).status_code == 404
+
+
+def test_schema_v1_gains_uploads_stored_bytes(tmp_path):
+    """The quota's per-upload byte count is a new column: a v1 store migrates to v2 and its
+    old uploads count their archive size."""
+    from sqlalchemy import delete, insert, inspect
+
+    from service.models import SCHEMA_VERSION, SchemaVersion
+    from service.store import Store
+
+    store = Store(f"sqlite:///{tmp_path / 'v1.db'}")
+    store.init_schema()
+    with store.engine.begin() as conn:
+        conn.exec_driver_sql("ALTER TABLE uploads DROP COLUMN stored_bytes")
+        conn.execute(delete(SchemaVersion))
+        conn.execute(insert(SchemaVersion).values(version=1))
+        conn.exec_driver_sql("INSERT INTO tenants (id, created_at) VALUES ('t', '2026-01-01')")
+        conn.exec_driver_sql(
+            "INSERT INTO uploads (id, tenant_id, sha256, size, content_type, summary, "
+            "created_at) VALUES ('u', 't', '', 123, 'application/x-tar', '{}', '2026-01-01')"
+        )
+    assert store.init_schema() == SCHEMA_VERSION == 2
+    columns = {c["name"] for c in inspect(store.engine).get_columns("uploads")}
+    assert "stored_bytes" in columns
+    assert store.tenant_storage("t") == (123, [])
+    store.close()
+
+
+def test_full_disk_is_recognised_behind_wrapping_errors():
+    """ENOSPC/EDQUOT and SQLite's "database or disk is full" count as a full disk, also when
+    wrapped (safe_extract's InputError, SQLAlchemy's OperationalError); other errors do not."""
+    import sqlite3
+
+    from sqlalchemy.exc import OperationalError
+
+    def wrapped(inner: BaseException) -> BaseException:
+        try:
+            try:
+                raise inner
+            except OSError:
+                raise ValueError("corrupt or unreadable archive") from None
+        except ValueError as outer:
+            return outer
+
+    assert service_uploads.is_disk_full(wrapped(OSError(errno.ENOSPC, "full")))
+    assert service_uploads.is_disk_full(OSError(errno.EDQUOT, "quota"))
+    assert not service_uploads.is_disk_full(wrapped(OSError(errno.EIO, "io")))
+    full = sqlite3.OperationalError("database or disk is full")
+    full.sqlite_errorcode = sqlite3.SQLITE_FULL
+    assert service_uploads.is_disk_full(OperationalError("INSERT", {}, full))
+    assert not service_uploads.is_disk_full(OperationalError("INSERT", {}, ValueError("x")))

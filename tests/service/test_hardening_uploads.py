@@ -303,10 +303,10 @@ def test_upload_deleted_while_a_job_is_created_answers_404_not_500(client, uploa
     state = state_of(client)
     real_create = state.store.create_job
 
-    def delete_first(job: Job) -> Job:
+    def delete_first(job: Job, **kwargs: Any) -> Job:
         assert state.store.delete_upload(upload_id, "tenant-a") is not None
         service_uploads.remove(state.settings.storage_dir / "uploads" / upload_id)
-        return real_create(job)
+        return real_create(job, **kwargs)
 
     monkeypatch.setattr(state.store, "create_job", delete_first)
     response = client.post(

@@ -144,6 +144,8 @@ def test_unexpected_error_shows_clients_an_error_id_not_paths_or_urls(tmp_path, 
 # Defect 3: `uvicorn service.main:app` never exited after SIGTERM while a job ran.
 
 LONG_JOB = {"reconstruct": {"iterations": 100_000, "holdout": 0}}
+QUICK_JOB = {"reconstruct": {"iterations": 1, "holdout": 0}, "affinity": {"iterations": 1}}
+"""Ends within seconds; the worker then idles."""
 
 
 def _start_uvicorn(
@@ -171,7 +173,7 @@ def _start_uvicorn(
 
 def _submit(url: str, scene: Path, server: subprocess.Popen[bytes], log: Path, busy: bool) -> str:
     """Upload the scene and submit a job; ``busy``: a long job, returned once it reconstructs;
-    otherwise a job with a bad option, returned once it failed (the worker then idles)."""
+    otherwise a one-step job, returned once it ended (the worker then idles)."""
     with httpx.Client(base_url=url, headers=AUTH_A, timeout=30) as client:
 
         def ready() -> bool:
@@ -183,14 +185,14 @@ def _submit(url: str, scene: Path, server: subprocess.Popen[bytes], log: Path, b
 
         wait_until(ready, timeout=60, every=0.1)
         upload = client.post("/v1/uploads", content=tar_bytes(scene), headers=TAR).json()
-        options = LONG_JOB if busy else {"reconstruct": {"no_such_knob": 1}}
+        options = LONG_JOB if busy else QUICK_JOB
         body = {"upload_id": upload["id"], "options": options}
         job_id: str = client.post("/v1/jobs", json=body).json()["id"]
 
         def reached() -> bool:
             job = client.get(f"/v1/jobs/{job_id}").json()
             if not busy:
-                return bool(job["status"] == "failed")
+                return bool(job["status"] in ("succeeded", "failed"))
             assert job["status"] in ("queued", "running"), job
             return "reconstruct: step" in (job["progress"]["message"] or "")
 
@@ -244,7 +246,8 @@ def test_uvicorn_exits_within_the_shutdown_grace(tmp_path, scene, target, busy):
         job = store.get_job(job_id)
     finally:
         store.close()
-    assert job is not None and job.status == "running", log.read_text()[-3000:]
+    # interrupted: its lease was expired, so the API's own sweep may already have requeued it
+    assert job is not None and job.status in ("running", "queued"), log.read_text()[-3000:]
     finished = read_manifest(JobPaths(tmp_path / "data", job_id))["stages"]
     assert [s["name"] for s in finished] == ["validate"]  # kept for the resumed run
 
@@ -344,7 +347,8 @@ def test_sigterm_interrupts_the_celery_job_and_the_next_worker_resumes_it(
         except subprocess.TimeoutExpired:
             pytest.fail(f"the worker kept running its job:\n{first_log.read_text()[-3000:]}")
     job = _job(store, job_id)
-    assert job.status == "running" and job.attempts == 1, first_log.read_text()[-3000:]
+    # a shutdown is not a crash: the interrupted run gave its attempt back (max_attempts)
+    assert job.status == "running" and job.attempts == 0, first_log.read_text()[-3000:]
     assert f"{job_id}] succeeded" not in first_log.read_text()
     paths = JobPaths(Path(env["DCSEG_STORAGE_DIR"]), job_id)
     assert [s["name"] for s in read_manifest(paths)["stages"]] == ["validate"]
@@ -357,7 +361,7 @@ def test_sigterm_interrupts_the_celery_job_and_the_next_worker_resumes_it(
 
         wait_until(finished, timeout=60, every=0.1)
     job = _job(store, job_id)
-    assert job.status == "succeeded" and job.attempts == 2, second_log.read_text()[-3000:]
+    assert job.status == "succeeded" and job.attempts == 1, second_log.read_text()[-3000:]
     messages = [e.data.get("message") for e in store.events_after(job_id, 0)]
     assert "validate: already finished" in messages
 

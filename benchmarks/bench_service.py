@@ -203,6 +203,8 @@ def service_env(root: Path, **overrides: str) -> dict[str, str]:
         "DCSEG_API_KEYS": f"bench:{API_KEY}",
         "DCSEG_RATE_LIMIT_PER_MINUTE": str(UNLIMITED),
         "DCSEG_MAX_RUNNING_JOBS_PER_TENANT": "1000",
+        "DCSEG_MAX_STREAMS_PER_TENANT": "1000",  # the events phase opens one per client
+        "DCSEG_FAILED_AUTH_PER_MINUTE": str(UNLIMITED),
         "DCSEG_DEVICE": "cpu",
     }
     for name in ("DCSEG_BROKER_URL", "DCSEG_DATABASE_URL", "DCSEG_RATE_LIMIT_URL"):

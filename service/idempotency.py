@@ -60,7 +60,8 @@ def _stored(response: JSONResponse) -> dict[str, Any]:
 
 def _begin(state: AppState, tenant: str, key: str, request_hash: str) -> IdempotentRequest:
     ttl = timedelta(seconds=state.settings.idempotency_ttl_s)
-    outcome = state.store.idempotency_begin(tenant, key, request_hash, ttl)
+    in_flight = timedelta(seconds=state.settings.idempotency_in_flight_s)
+    outcome = state.store.idempotency_begin(tenant, key, request_hash, ttl, in_flight)
     if outcome.kind == "mismatch":
         raise ApiProblem(
             422, "Idempotency-Key was used with a different body", slug="idempotency-mismatch"

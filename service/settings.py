@@ -59,6 +59,11 @@ class Settings(BaseSettings):
     idempotency_ttl_s: float = Field(default=24 * 3600.0, gt=0)
     """How long an ``Idempotency-Key`` is remembered; an older record is ignored and swept."""
 
+    idempotency_in_flight_s: float = Field(default=3600.0, gt=0)
+    """How long a keyed request that has not answered yet blocks its key (409); after that it
+    counts as abandoned (its API process died) and a retry with the key runs again. Longer
+    than the slowest upload validation."""
+
     housekeeping_interval_s: float = Field(default=600.0, gt=0)
     """How often the API deletes expired uploads and idempotency records."""
 
@@ -126,14 +131,15 @@ class Settings(BaseSettings):
     being requeued forever. Runs stopped by a worker shutdown do not count."""
 
     sqlite_busy_timeout_s: float | None = Field(default=None, gt=0)
-    """How long a SQLite write waits for another writer's lock before failing; None = one
+    """How long a SQLite write waits for another writer's lock before failing; None = half of
     ``heartbeat_s``. Must be below the stale-lease window ``3 * heartbeat_s``, so a heartbeat
-    stuck behind a lock fails and retries instead of letting a live lease look dead."""
+    stuck behind a lock fails and retries instead of letting a live lease look dead (with half
+    an interval, a beat that waited the whole timeout still retries at 1.5 intervals)."""
 
     @property
     def busy_timeout_s(self) -> float:
         """The effective SQLite busy timeout (:attr:`sqlite_busy_timeout_s`)."""
-        return self.sqlite_busy_timeout_s or self.heartbeat_s
+        return self.sqlite_busy_timeout_s or self.heartbeat_s / 2
 
     @model_validator(mode="after")
     def _busy_timeout_below_stale_lease(self) -> Settings:
@@ -171,11 +177,13 @@ class Settings(BaseSettings):
     """Redis visibility timeout: an unacknowledged task is redelivered after this long. Must
     exceed the longest queue wait plus run time, or long jobs get delivered twice."""
 
-    task_soft_time_limit_s: int = Field(default=6 * 3600, ge=1)
-    """Celery soft time limit of one job (raises inside the task)."""
+    task_soft_time_limit_s: int = Field(default=10 * 3600, ge=1)
+    """Celery soft time limit of one job (raises inside the task); at least the sum of the
+    stage limits (checked), so every stage can use its own limit."""
 
-    task_time_limit_s: int = Field(default=6 * 3600 + 300, ge=1)
-    """Celery hard time limit of one job (the worker child is killed; prefork pool only)."""
+    task_time_limit_s: int = Field(default=10 * 3600 + 300, ge=1)
+    """Celery hard time limit of one job (the worker child is killed; prefork pool only);
+    above the soft limit and below the visibility timeout (checked)."""
 
     stage_time_limit_s: dict[str, float] = {
         "validate": 900.0,
@@ -189,6 +197,25 @@ class Settings(BaseSettings):
 
     stage_time_limit_default_s: float = Field(default=3600.0, gt=0)
     """Limit of a stage that ``stage_time_limit_s`` does not name."""
+
+    @model_validator(mode="after")
+    def _time_limits_fit(self) -> Settings:
+        bad = {k: v for k, v in self.stage_time_limit_s.items() if not 0 < v < float("inf")}
+        if bad:
+            raise ValueError(f"stage_time_limit_s (DCSEG_STAGE_TIME_LIMIT_S) must be > 0: {bad}")
+        total = sum(self.stage_time_limit_s.values())
+        if total > self.task_soft_time_limit_s:
+            raise ValueError(
+                f"the stage limits (DCSEG_STAGE_TIME_LIMIT_S) add up to {total:g} s, more than"
+                f" DCSEG_TASK_SOFT_TIME_LIMIT_S = {self.task_soft_time_limit_s} s"
+            )
+        if not self.task_soft_time_limit_s < self.task_time_limit_s < self.visibility_timeout_s:
+            raise ValueError(
+                "DCSEG_TASK_SOFT_TIME_LIMIT_S < DCSEG_TASK_TIME_LIMIT_S <"
+                " DCSEG_VISIBILITY_TIMEOUT_S must hold (a job still running at the visibility"
+                " timeout is delivered twice)"
+            )
+        return self
 
     stage_kill_grace_s: float = Field(default=60.0, gt=0)
     """How long a stage may run past its limit without reaching a progress report before it

@@ -53,8 +53,9 @@ def _add_upload_stored_bytes(conn: Connection) -> None:
 MIGRATIONS: dict[int, Callable[[Connection], None]] = {2: _add_upload_stored_bytes}
 """``MIGRATIONS[v]`` upgrades a version ``v - 1`` schema to version ``v``."""
 
-IDEMPOTENCY_ABANDONED = timedelta(minutes=2)
-"""An in-flight idempotency record older than this is taken over (its request died)."""
+IDEMPOTENCY_ABANDONED = timedelta(hours=1)
+"""An in-flight idempotency record older than this is taken over (its request died); the API
+passes :attr:`Settings.idempotency_in_flight_s`."""
 
 READ_ONLY = "dcseg_read_only"
 """Execution option of read sessions: SQLite opens them with a deferred ``BEGIN``."""
@@ -377,11 +378,17 @@ class Store:
 
     # ----- idempotency -----
     def idempotency_begin(
-        self, tenant: str, key: str, request_hash: str, ttl: timedelta | None = None
+        self,
+        tenant: str,
+        key: str,
+        request_hash: str,
+        ttl: timedelta | None = None,
+        in_flight: timedelta = IDEMPOTENCY_ABANDONED,
     ) -> IdempotencyOutcome:
         """Reserve ``key`` for this request, or say how to answer a repeated one.
 
-        A record older than ``ttl`` is forgotten: the key counts as new.
+        A record older than ``ttl`` is forgotten: the key counts as new. A request without an
+        answer yet blocks the key for ``in_flight``, then counts as abandoned.
         """
         try:
             with self.session() as s:
@@ -401,7 +408,7 @@ class Store:
             if row.request_hash != request_hash:
                 return IdempotencyOutcome("mismatch")
             if row.status_code is None:
-                if utcnow() - row.created_at < IDEMPOTENCY_ABANDONED:
+                if utcnow() - row.created_at < in_flight:
                     return IdempotencyOutcome("in_flight")
                 row.created_at = utcnow()
                 return IdempotencyOutcome("new")

@@ -102,8 +102,10 @@ def check_options(body: JobCreate, summary: dict[str, Any]) -> None:
         build_config(body.preset, body.options)
         check_size(body.options, native_size(summary), "options.capture.size")
     except InputError as error:
-        items = [{"path": p.path, "reason": p.reason} for p in error.problems]
-        detail = f"{len(items)} invalid field(s): " + "; ".join(str(p) for p in error.problems)
+        items = [{"path": f"body.{p.path}", "reason": p.reason} for p in error.problems]
+        detail = f"{len(items)} invalid field(s): " + "; ".join(
+            f"{i['path']}: {i['reason']}" for i in items
+        )
         raise ApiProblem(
             422, detail, slug="validation-error", title="Request validation failed", errors=items
         ) from None
@@ -125,8 +127,11 @@ def _submit(state: AppState, tenant: str, body: JobCreate) -> JSONResponse:
     try:
         state.queue.enqueue(job.id)
     except Exception as error:
-        logger.exception("could not enqueue job %s", job.id)
-        state.store.finish_job(job.id, "failed", {"detail": f"queue unavailable: {error}"})
+        error_id = new_id()
+        logger.exception("could not enqueue job %s (error id %s)", job.id, error_id)
+        detail = f"the job queue was unavailable (error id {error_id}); submit the job again"
+        body_ = {"type": "queue-unavailable", "detail": detail, "error_id": error_id}
+        state.store.finish_job(job.id, "failed", body_)
         raise ApiProblem(
             503, "the job queue is unavailable; try again later", slug="queue-down"
         ) from error

@@ -89,6 +89,8 @@ def make_settings(root: Path, **overrides: Any) -> Settings:
         "max_upload_bytes": 4 * 2**20,
     }
     values.update(overrides)
+    # a loaded 2-core CI machine: let SQLite writers wait most of the stale-lease window
+    values.setdefault("sqlite_busy_timeout_s", 2.5 * values["heartbeat_s"])
     return Settings(**values)
 
 

@@ -228,10 +228,11 @@ def test_sqlite_writes_begin_immediate_with_the_configured_busy_timeout(sqlite_s
 
 
 def test_sqlite_busy_timeout_comes_from_settings(tmp_path):
-    """Defect 3: the SQLite busy timeout is a setting (default: one heartbeat interval)."""
+    """Defect 3: the SQLite busy timeout is a setting (default: half a heartbeat interval)."""
     settings = make_settings(tmp_path, heartbeat_s=4.0, sqlite_busy_timeout_s=2.5)
     settings.storage_dir.mkdir(parents=True)
-    for configured, expected_ms in ((settings, 2500), (make_settings(tmp_path), 200)):
+    default = Settings(storage_dir=settings.storage_dir, heartbeat_s=0.4)
+    for configured, expected_ms in ((settings, 2500), (default, 200)):
         store = Store.from_settings(configured)
         try:
             with store.engine.connect() as conn:
@@ -245,7 +246,7 @@ def test_settings_busy_timeout_must_be_shorter_than_stale_lease_window():
     with pytest.raises(ValidationError, match="sqlite_busy_timeout_s .* 3 \\* heartbeat_s"):
         Settings(heartbeat_s=10.0, sqlite_busy_timeout_s=30.0)
     assert Settings(heartbeat_s=10.0, sqlite_busy_timeout_s=29.0).busy_timeout_s == 29.0
-    assert Settings(heartbeat_s=10.0).busy_timeout_s == 10.0
+    assert Settings(heartbeat_s=10.0).busy_timeout_s == 5.0
 
 
 # ----- 4. database clock -----

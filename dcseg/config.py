@@ -56,10 +56,14 @@ class CacheConfig:
     Attributes:
         min_weight: contributions below this blending weight are not stored.
         max_per_pixel: at most this many contributions are stored per pixel (front-most).
+        memory_mb: the cache lives in the run's ``state/views/``; at most this many MB of it
+            are kept in memory (least recently used views are read again from disk). Changes
+            time and memory, never results: a capture whose cache fits is read once.
     """
 
     min_weight: float = 1e-3
     max_per_pixel: int = 32
+    memory_mb: int = 2048
 
 
 DEFAULT_SCALE = 0.35

@@ -26,7 +26,7 @@ from dcseg.config import CacheConfig, PipelineConfig
 from dcseg.evaluate.points import transfer_nearest, vote_projection
 from dcseg.evaluate.stage import evaluate_scenes
 from dcseg.gaussians import Gaussians
-from dcseg.io.run_state import ViewState, write_view
+from dcseg.io.run_state import BlendMemory, ViewState, write_view
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
 from dcseg.segment import class_agreement, cluster_map, label_map
@@ -98,10 +98,13 @@ def build_views(
     """The blending-weight cache of every frame of the capture.
 
     With ``folder``, each view's weights are written to ``folder/views/<i>.npz`` as soon as
-    they are computed and not kept (the run's ``state/`` layout): memory then holds one view's
-    weights at a time however many frames the capture has. Without it they stay in memory.
+    they are computed (the run's ``state/`` layout) and at most ``cfg.memory_mb`` of them stay
+    in memory (:class:`~dcseg.io.run_state.BlendMemory`): the weights held never exceed that
+    budget plus the view in use, however many frames the capture has. Without ``folder`` all
+    views stay in memory.
     """
     views = []
+    memory = BlendMemory(cfg.memory_mb * 2**20)
     for i, frame in enumerate(capture.frames):
         camera = Camera.from_frame(frame)
         blend = blend_weights(
@@ -112,7 +115,7 @@ def build_views(
             views.append(ViewState.in_memory(frame.name, K, c2w, blend, frame.depth))
         else:
             path = folder / "views" / f"{i}.npz"
-            views.append(write_view(path, frame.name, K, c2w, blend, frame.depth))
+            views.append(write_view(path, frame.name, K, c2w, blend, frame.depth, memory))
         on_progress("cache", (i + 1) / len(capture), f"view {frame.name}: {blend.nnz} weights")
         del blend
     return tuple(views)

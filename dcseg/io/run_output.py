@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 from plyfile import PlyData
 
+from dcseg.config import CacheConfig
 from dcseg.errors import InputError
 from dcseg.io.exports import (
     instance_records,
@@ -37,7 +38,13 @@ from dcseg.io.exports import (
 )
 from dcseg.io.images import read_image, write_png
 from dcseg.io.ply import read_gaussians_ply, write_gaussians_ply
-from dcseg.io.run_state import load_affinity, load_views, save_affinity, save_views
+from dcseg.io.run_state import (
+    BlendMemory,
+    load_affinity,
+    load_views,
+    save_affinity,
+    save_views,
+)
 from dcseg.io.semantic import (
     read_semantic_maps,
     read_vocabulary,
@@ -154,7 +161,9 @@ def load_run(run: Path) -> SavedRun:
         raise InputError.single(str(run), "not a dcseg run folder (no run.json and state/)")
     gaussians = read_gaussians_ply(state / "gaussians.ply")
     trained = TrainedScene(
-        gaussians, load_affinity(state / "affinity.npz"), tuple(load_views(state))
+        gaussians,
+        load_affinity(state / "affinity.npz"),
+        tuple(load_views(state, BlendMemory(CacheConfig().memory_mb * 2**20))),
     )
     vocabulary, semantic = Vocabulary(()), {}
     if (state / "vocabulary.json").is_file():  # absent in trained-only runs

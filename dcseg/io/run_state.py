@@ -20,8 +20,9 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,43 @@ from dcseg.blend import BlendWeights
 from dcseg.errors import InputError
 
 STATE_VERSION = 1
+
+
+class BlendMemory:
+    """Cached views' blending weights kept in memory up to a byte budget, least recently used
+    first out: a capture whose cache fits the budget is read from disk once; a larger one
+    holds the budget plus the view in use, however many frames it has."""
+
+    def __init__(self, budget_bytes: int) -> None:
+        self.budget = budget_bytes
+        self._items: OrderedDict[Path, BlendWeights] = OrderedDict()
+        self._bytes = 0
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held now."""
+        return self._bytes
+
+    def get(self, path: Path, width: int, height: int) -> BlendWeights:
+        """The weights of ``path`` (read from disk unless held)."""
+        held = self._items.get(path)
+        if held is not None:
+            self._items.move_to_end(path)
+            return held
+        blend = _read_blend(path, width, height)
+        self.put(path, blend)
+        return blend
+
+    def put(self, path: Path, blend: BlendWeights) -> None:
+        """Hold ``blend`` for ``path`` if it fits, dropping the least recently used."""
+        size = blend.nbytes()
+        if size > self.budget or path in self._items:
+            return
+        while self._items and self._bytes + size > self.budget:
+            _, dropped = self._items.popitem(last=False)
+            self._bytes -= dropped.nbytes()
+        self._items[path] = blend
+        self._bytes += size
 
 
 @dataclass(frozen=True)
@@ -52,6 +90,8 @@ class ViewState:
         width, height: the view's resolution (of the blending weights and the depth).
         cached: the weights in memory, or None when they are read from ``source``.
         source: the view's cache file, or None for in-memory weights.
+        memory: where weights read from ``source`` are kept within a budget (None = read on
+            every access).
     """
 
     name: str
@@ -62,6 +102,7 @@ class ViewState:
     height: int
     cached: BlendWeights | None = None
     source: Path | None = None
+    memory: BlendMemory | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if (self.cached is None) == (self.source is None):
@@ -84,6 +125,8 @@ class ViewState:
         if self.cached is not None:
             return self.cached
         assert self.source is not None
+        if self.memory is not None:
+            return self.memory.get(self.source, self.width, self.height)
         return _read_blend(self.source, self.width, self.height)
 
     def cache_bytes(self) -> int:
@@ -96,10 +139,10 @@ class ViewState:
 
 def write_view(
     path: Path, name: str, K: NDArray[np.float64], c2w: NDArray[np.float64],
-    blend: BlendWeights, depth: NDArray[np.float32],
+    blend: BlendWeights, depth: NDArray[np.float32], memory: BlendMemory | None = None,
 ) -> ViewState:  # fmt: skip
     """Write one view's weights (offsets int64, ids int32, weights float32) and depth (float16)
-    to ``path``; the returned view reads them back on use."""
+    to ``path``; the returned view reads them back on use (kept in ``memory`` if given)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(
         path,
@@ -108,7 +151,9 @@ def write_view(
         weights=blend.weights.cpu().numpy(),
         depth=depth.astype(np.float16),
     )
-    return ViewState(name, K, c2w, depth, blend.width, blend.height, source=path)
+    if memory is not None:
+        memory.put(path, blend)
+    return ViewState(name, K, c2w, depth, blend.width, blend.height, source=path, memory=memory)
 
 
 def save_affinity(path: Path, result: AffinityResult) -> None:
@@ -167,8 +212,8 @@ def _link_or_copy(src: Path, dst: Path) -> None:
         shutil.copy2(src, dst)
 
 
-def load_views(folder: Path) -> list[ViewState]:
-    """Read what :func:`save_views` wrote."""
+def load_views(folder: Path, memory: BlendMemory | None = None) -> list[ViewState]:
+    """Read what :func:`save_views` wrote (the weights are read on use, kept in ``memory``)."""
     path = folder / "views.json"
     try:
         body = json.loads(path.read_text(encoding="utf-8"))
@@ -176,10 +221,12 @@ def load_views(folder: Path) -> list[ViewState]:
         raise InputError.single(str(path), f"cannot read the run's views: {error}") from None
     if body.get("version") != STATE_VERSION:
         raise InputError.single(str(path), f"unsupported state version {body.get('version')}")
-    return [_load_view(folder, i, meta) for i, meta in enumerate(body["views"])]
+    return [_load_view(folder, i, meta, memory) for i, meta in enumerate(body["views"])]
 
 
-def _load_view(folder: Path, index: int, meta: dict[str, Any]) -> ViewState:
+def _load_view(
+    folder: Path, index: int, meta: dict[str, Any], memory: BlendMemory | None
+) -> ViewState:
     path = folder / "views" / f"{index}.npz"
     depth = _load_npz(path, ("depth",))["depth"].astype(np.float32)
     return ViewState(
@@ -190,6 +237,7 @@ def _load_view(folder: Path, index: int, meta: dict[str, Any]) -> ViewState:
         width=int(meta["width"]),
         height=int(meta["height"]),
         source=path,
+        memory=memory,
     )
 
 

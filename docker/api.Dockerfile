@@ -32,4 +32,6 @@ HEALTHCHECK --interval=30s --timeout=5s --start-period=20s --retries=3 \
 # Redis: DCSEG_RATE_LIMIT_URL, by default a redis:// DCSEG_BROKER_URL). `dcseg serve` refuses to
 # bind 0.0.0.0 without DCSEG_API_KEYS (unless DCSEG_ALLOW_UNAUTHENTICATED=true) and, like
 # uvicorn --proxy-headers, trusts X-Forwarded-For from FORWARDED_ALLOW_IPS (default 127.0.0.1).
+# On SIGTERM it ends open event streams and exits within about 2 x DCSEG_SHUTDOWN_GRACE_S + 5 s
+# (service/README.md, "Stage time limits and shutdown"): set the stop timeout above that.
 CMD ["dcseg", "serve", "--host", "0.0.0.0", "--port", "8000"]

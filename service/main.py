@@ -10,7 +10,7 @@ import asyncio
 import logging
 import shutil
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Sequence
 from contextlib import asynccontextmanager
 from datetime import timedelta
 from pathlib import Path
@@ -107,13 +107,23 @@ async def recover_lost_jobs(
             logger.exception("recovery sweep failed; retrying")
 
 
-async def stop_recovery(recovery: asyncio.Task[None], grace_s: float) -> None:
-    """Cancel the recovery sweep; a pass blocked in the database is waited for ``grace_s`` at
-    most (its thread cannot be interrupted), so shutdown stays bounded."""
-    recovery.cancel()
-    done, _ = await asyncio.wait({recovery}, timeout=grace_s)
-    if not done:
-        logger.warning("recovery sweep still busy after %g s; shutting down anyway", grace_s)
+async def shut_down(
+    tasks: Sequence[asyncio.Task[None]], local: EmbeddedWorker | None, grace_s: float
+) -> None:
+    """Cancel the background ``tasks`` (recovery sweep, housekeeping) and stop the embedded
+    worker, side by side and to one deadline ``grace_s`` from now: the whole shutdown takes at
+    most ``grace_s`` plus the worker's ``KILL_WAIT_S`` to reap a killed child. A task blocked
+    in the database past the deadline (its thread cannot be interrupted) is left behind."""
+    deadline = time.monotonic() + grace_s
+    for task in tasks:
+        task.cancel()  # first: the recovery sweep must not restart the worker being stopped
+    stopping = asyncio.ensure_future(asyncio.to_thread(local.stop, deadline)) if local else None
+    _, pending = await asyncio.wait(tasks, timeout=max(0.0, deadline - time.monotonic()))
+    if pending:
+        names = ", ".join(sorted(task.get_name() for task in pending))
+        logger.warning("%s still busy after %g s; shutting down anyway", names, grace_s)
+    if stopping is not None:
+        await stopping  # bounded by the deadline plus KILL_WAIT_S
 
 
 ABANDONED_UPLOAD_S = 24 * 3600.0
@@ -175,6 +185,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         current = settings or get_settings()
+        app.state.draining = asyncio.Event()  # set by events.begin_draining at shutdown
         state = open_state(current)
         app.state.dcseg = state
         swept = sweep(state.store, state.queue, current)
@@ -185,17 +196,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             local = EmbeddedWorker(current, mode=current.embedded_worker)
             local.start()
         recovery = asyncio.create_task(
-            recover_lost_jobs(state.store, state.queue, current, local, resend=not swept)
+            recover_lost_jobs(state.store, state.queue, current, local, resend=not swept),
+            name="recovery sweep",
         )
-        housekeeping = asyncio.create_task(housekeep(state.store, current))
+        housekeeping = asyncio.create_task(housekeep(state.store, current), name="housekeeping")
+        undo_drain = events.drain_on_signals(app)  # SIGTERM ends open event streams at once
         try:
             yield
         finally:
-            housekeeping.cancel()
-            await stop_recovery(recovery, current.shutdown_grace_s)
-            if local is not None:
-                local.stop()  # bounded by shutdown_grace_s: the child is killed after it
+            await shut_down([recovery, housekeeping], local, current.shutdown_grace_s)
             state.store.close()
+            undo_drain()
 
     app = FastAPI(
         title="dcseg",

@@ -224,10 +224,14 @@ class Settings(BaseSettings):
     mode, Celery ``solo``/``threads`` pools)."""
 
     shutdown_grace_s: float = Field(default=8.0, gt=0)
-    """How long the API's shutdown (embedded mode) waits for the embedded worker's job to
-    reach a progress report and stop (it stays unfinished and resumes from its last finished
-    stage at the next start) before the worker process is killed. Kept below Docker's default
-    10 s stop timeout."""
+    """The API's shutdown deadline. ``dcseg serve`` gives open responses this long (event
+    streams end at once; plain uvicorn needs ``--timeout-graceful-shutdown``), then the app's
+    shutdown waits at most this long, for the recovery sweep, housekeeping and the embedded
+    worker together: the worker's job stops at its next progress report (it stays unfinished,
+    keeps its attempt and resumes from its last finished stage at the next start), else the
+    worker process is killed (plus up to 5 s to reap it). So shutdown takes at most about
+    ``2 * shutdown_grace_s + 5`` s: give the container a longer stop timeout than that
+    (Docker's default is 10 s)."""
 
     device: str = "auto"
     """Worker device: ``auto`` (CUDA when available), ``cpu``, ``cuda``, ``cuda:1``..."""

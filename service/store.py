@@ -484,6 +484,26 @@ class Store:
             job.attempts = max(0, job.attempts - 1)
             return True
 
+    def release_attempts_of(self, worker: str) -> list[str]:
+        """Runs of ``worker``, or of any worker id under it (``host:pid`` covers every
+        ``host:pid:thread``), stopped for a shutdown: each job still held by one of them
+        (running or canceling) gets its attempt back and is given up at once (lease expired,
+        no runner), so it is released once only. Returns the released jobs' ids."""
+        owners = (Job.worker == worker) | Job.worker.startswith(f"{worker}:", autoescape=True)
+        query = (
+            select(Job)
+            .where(Job.status.in_(("running", "canceling")), owners)
+            .order_by(Job.id)
+            .with_for_update()
+        )
+        with self.session() as s:
+            jobs = list(s.scalars(query))
+            stale = self._now(s) - timedelta(days=1)  # stale for any heartbeat_s
+            for job in jobs:
+                job.attempts = max(0, job.attempts - 1)
+                job.heartbeat_at, job.worker = stale, None
+            return [job.id for job in jobs]
+
     def next_queued(self) -> str | None:
         """The oldest queued job's id (the embedded worker's queue)."""
         query = select(Job.id).where(Job.status == "queued").order_by(Job.created_at).limit(1)

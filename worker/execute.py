@@ -241,13 +241,14 @@ class _Runner:
         self._deadline = float("inf")
         self._timeout: StageTimeout | None = None
 
-    def check(self) -> None:
-        """Raise if the job must stop: cancel flag, worker shutdown or stage time limit."""
+    def check(self, *, interrupt: bool = True) -> None:
+        """Raise if the job must stop: cancel flag, worker shutdown (unless not ``interrupt``)
+        or stage time limit."""
         if self.heartbeat.state == "lost":
             raise LeaseLost()
         if self.heartbeat.state == "cancel":
             raise Canceled()
-        if self.interrupt():
+        if interrupt and self.interrupt():
             raise Interrupted()
         if self.watchdog is not None and self.watchdog.fired is not None:
             raise self.watchdog.fired
@@ -317,7 +318,9 @@ class _Runner:
                 )
                 outcome = stage.run(ctx, tmp)
             self._stop_clock()
-            self.check()  # a worker that lost its lease or was canceled must not commit
+            # a worker that lost its lease or was canceled must not commit; a shutdown must
+            # not discard a finished stage: it is committed, the next report interrupts
+            self.check(interrupt=False)
             manifest["stages"].append(self._commit(stage.name, index, key, tmp, outcome))
             write_manifest(self.paths, manifest)
             message = outcome.message or f"{stage.name}: {outcome.status}"
@@ -388,8 +391,14 @@ def _link_files(source: Path, files: dict[str, Any], name: str, dest: Path) -> N
             raise ValueError(f"{entry} is {target.stat().st_size} bytes, not {meta['size']}")
 
 
+def worker_id_prefix(pid: int) -> str:
+    """``host:pid``: what the worker ids of process ``pid`` on this host start with."""
+    return f"{socket.gethostname()}:{pid}"
+
+
 def default_worker_id() -> str:
-    return f"{socket.gethostname()}:{os.getpid()}:{threading.get_ident()}"
+    """``host:pid:thread`` (see :func:`worker_id_prefix`)."""
+    return f"{worker_id_prefix(os.getpid())}:{threading.get_ident()}"
 
 
 def error_body(
@@ -490,7 +499,6 @@ def execute_job(
         except Canceled:
             return _finish(store, job_id, worker, "canceled", None)
         except Interrupted:
-            _not_a_crash(store, job_id, worker)
             return _interrupted(store, job_id, worker, heartbeat)
         except LeaseLost:
             if watchdog.fired is not None:  # the watchdog failed the job; its stage returned
@@ -504,19 +512,17 @@ def execute_job(
     return _finish(store, job_id, worker, "succeeded", None)
 
 
-def _not_a_crash(store: Store, job_id: str, worker: str) -> None:
-    """A run stopped by a shutdown gives its attempt back (``max_attempts`` counts crashes)."""
-    try:
-        store.release_attempt(job_id, worker)
-    except Exception:  # the job then counts one attempt more; never block the shutdown
-        logger.warning("job %s: could not release its attempt", job_id, exc_info=True)
-
-
 def _interrupted(store: Store, job_id: str, worker: str, heartbeat: Heartbeat) -> str:
-    """Give the job up unfinished: stop the heartbeat, then expire the lease, so the next
-    delivery (or the recovery sweep) resumes it after its last finished stage at once."""
+    """Give the job up unfinished: stop the heartbeat, then, in one write, give its attempt
+    back (``max_attempts`` counts crashes, not shutdowns), expire the lease (the next delivery
+    or the recovery sweep resumes it after its last finished stage at once) and drop this
+    worker as its runner (so the embedded worker's parent does not give the attempt back a
+    second time, see :meth:`Store.release_attempts_of`)."""
     heartbeat.__exit__(None, None, None)  # no beat may refresh the lease after this
-    store.expire_lease(job_id, worker)
+    try:
+        store.release_attempts_of(worker)
+    except Exception:  # it then counts one attempt more and waits for the stale-lease sweep
+        logger.warning("job %s: could not give up its lease", job_id, exc_info=True)
     logger.info("job %s interrupted by shutdown; it resumes on the next claim", job_id)
     return "interrupted"
 

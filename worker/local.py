@@ -9,7 +9,8 @@ On shutdown the current job is interrupted at its next progress report and left 
 the next ``dcseg serve`` requeues it at startup and it resumes after its last finished stage.
 Stopping is bounded by ``DCSEG_SHUTDOWN_GRACE_S``: the child is asked to stop with SIGTERM
 (no shared lock or semaphore, so a child that already died, for instance from a Ctrl-C or a
-SIGTERM sent to the whole process group, cannot block the API's shutdown), then killed.
+SIGTERM sent to the whole process group, cannot block the API's shutdown), then killed. A job
+the stopped worker still held gets its attempt back (a shutdown is not a crash).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import multiprocessing
 import os
 import signal
 import threading
+import time
 from collections.abc import Callable, Sequence
 from multiprocessing.process import BaseProcess
 from types import FrameType
@@ -26,7 +28,7 @@ from typing import Any, Literal
 
 from service.settings import Settings
 from service.store import Store
-from worker.execute import Stage, execute_job
+from worker.execute import Stage, execute_job, worker_id_prefix
 
 logger = logging.getLogger(__name__)
 
@@ -139,26 +141,63 @@ class EmbeddedWorker:
             self._thread = self._process = None
             self.start()
 
-    def stop(self) -> None:
-        """Interrupt the running job and stop, within ``shutdown_grace_s`` (plus reaping)."""
+    def stop(self, deadline: float | None = None) -> None:
+        """Interrupt the running job and stop by ``deadline`` (``time.monotonic()``; default
+        ``shutdown_grace_s`` from now), killing the child past it (plus reaping, at most
+        ``KILL_WAIT_S``). The job the worker still held, if any, then gets its attempt back:
+        a shutdown is not a crash, however the worker ended."""
         if not self._running:
             return
         self._running = False
-        grace = self.settings.shutdown_grace_s
+        if deadline is None:
+            deadline = time.monotonic() + self.settings.shutdown_grace_s
+        held = self._owner_prefix()
         if self._thread is not None and self._stop is not None:
             self._stop.set()
-            self._thread.join(grace)
+            self._thread.join(_remaining(deadline))
             if self._thread.is_alive():
-                logger.warning("embedded worker thread still busy after %g s; abandoned", grace)
+                logger.warning("embedded worker thread still busy at the deadline; abandoned")
         if self._process is not None:
-            self._stop_process(self._process, grace)
+            self._stop_process(self._process, deadline)
+        if held is not None:
+            self._release_attempts(held)
+
+    def _owner_prefix(self) -> str | None:
+        """What the worker ids of the running worker start with (None: not started)."""
+        if self._thread is not None and self._thread.ident is not None:
+            return f"{worker_id_prefix(os.getpid())}:{self._thread.ident}"
+        if self._process is not None and self._process.pid is not None:
+            return worker_id_prefix(self._process.pid)
+        return None
+
+    def _release_attempts(self, owner: str) -> None:
+        """Give back the attempt of any job ``owner`` still holds (a child killed mid-stage;
+        one that stopped by itself already gave its job up, so nothing is released twice)."""
+        try:
+            store = Store.from_settings(self.settings)
+        except Exception:
+            logger.warning("could not open the store to release attempts", exc_info=True)
+            return
+        try:
+            released = store.release_attempts_of(owner)
+        except Exception:  # the job then counts one attempt more; never block the shutdown
+            logger.warning("could not release the attempts of %s", owner, exc_info=True)
+        else:
+            if released:
+                logger.info("stopped worker's job(s) %s: attempt given back", released)
+        finally:
+            store.close()
 
     @staticmethod
-    def _stop_process(process: BaseProcess, grace: float) -> None:
+    def _stop_process(process: BaseProcess, deadline: float) -> None:
         if process.is_alive():
             process.terminate()  # SIGTERM: the child interrupts its job at the next report
-            process.join(grace)
+            process.join(_remaining(deadline))
         if process.is_alive():
-            logger.warning("embedded worker still busy after %g s; killing it", grace)
+            logger.warning("embedded worker still busy at the shutdown deadline; killing it")
             process.kill()
             process.join(KILL_WAIT_S)
+
+
+def _remaining(deadline: float) -> float:
+    return max(0.0, deadline - time.monotonic())

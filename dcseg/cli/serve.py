@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import math
 import sys
 from typing import TYPE_CHECKING, Any
 
@@ -61,5 +62,17 @@ def run(args: argparse.Namespace) -> int:
     if reason is not None:
         sys.stderr.write(f"dcseg serve: {reason}\n")
         return 2
-    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
+    uvicorn.run(
+        create_app(settings),
+        host=args.host,
+        port=args.port,
+        log_level=args.log_level,
+        # open responses (uploads, downloads) get the shutdown grace, then are cancelled
+        timeout_graceful_shutdown=graceful_timeout_s(settings),
+    )
     return 0
+
+
+def graceful_timeout_s(settings: Settings) -> int:
+    """uvicorn's ``timeout_graceful_shutdown`` (whole seconds): ``shutdown_grace_s``."""
+    return max(1, math.ceil(settings.shutdown_grace_s))

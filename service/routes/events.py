@@ -5,19 +5,26 @@ reconnects with ``Last-Event-ID: n`` receives every event after ``n``. The strea
 the ``completed`` event, or cleanly after ``max_stream_s`` (a comment line says so; clients
 reconnect with ``Last-Event-ID``); a comment line is sent every 15 s to keep proxies from
 closing it. A tenant may hold ``max_streams_per_tenant`` streams per API process (429 past it).
+When the server begins to shut down (:func:`begin_draining`, on the server's SIGTERM or SIGINT,
+see :func:`drain_on_signals`) every open stream ends at once the same way: uvicorn waits for
+open responses before it runs the app's shutdown, so a stream would otherwise hold it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import signal
+import threading
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
+from types import FrameType
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Query
+from fastapi import APIRouter, Header, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
+from starlette.applications import Starlette
 from starlette.types import Receive, Scope, Send
 
 from service.deps import AppState, StateDep, StreamSlots, TenantDep
@@ -29,16 +36,72 @@ router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 KEEPALIVE_S = 15.0
 
 
+def draining(app: Starlette) -> asyncio.Event:
+    """Set once the server begins shutting down; open event streams then end. The lifespan
+    makes a new one at each start (an event belongs to one event loop)."""
+    event = getattr(app.state, "draining", None)
+    if not isinstance(event, asyncio.Event):
+        event = app.state.draining = asyncio.Event()
+    return event
+
+
+def begin_draining(app: Starlette, loop: asyncio.AbstractEventLoop) -> None:
+    """End ``app``'s open event streams (safe from a signal handler or another thread;
+    ``loop`` is the server's event loop)."""
+    loop.call_soon_threadsafe(lambda: draining(app).set())
+
+
+def drain_on_signals(app: Starlette) -> Callable[[], None]:
+    """Make the server's SIGTERM and SIGINT handlers (uvicorn's, installed before the app
+    starts) also call :func:`begin_draining`; returns what undoes it. Does nothing outside
+    the main thread (a test client) or when a signal has no Python handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    loop = asyncio.get_running_loop()
+    chained: dict[int, Callable[[int, FrameType | None], Any]] = {}
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        begin_draining(app, loop)
+        chained[signum](signum, frame)
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        previous = signal.getsignal(sig)
+        if callable(previous):
+            chained[sig] = previous
+            signal.signal(sig, handler)
+
+    def undo() -> None:
+        for sig, previous in chained.items():
+            if signal.getsignal(sig) is handler:
+                signal.signal(sig, previous)
+
+    return undo
+
+
+async def _stopped(stop: asyncio.Event | None, pause: float) -> bool:
+    """Sleep ``pause``; True at once when ``stop`` is set."""
+    if stop is None:
+        await asyncio.sleep(pause)
+        return False
+    try:
+        await asyncio.wait_for(stop.wait(), pause)
+    except TimeoutError:
+        return False
+    return True
+
+
 def format_event(event: Event) -> str:
     data = json.dumps(event.data, separators=(",", ":"))
     return f"id: {event.seq}\nevent: {event.type}\ndata: {data}\n\n"
 
 
-async def stream_events(state: AppState, job_id: str, after: int) -> AsyncIterator[str]:
-    """The events of ``job_id`` after ``after``, until ``completed``, the job's deletion or
-    ``max_stream_s``. While nothing happens the pause between polls doubles from
-    ``poll_interval_s`` up to ``stream_poll_max_s``; the job row is read only with each
-    keep-alive (to notice a deletion)."""
+async def stream_events(
+    state: AppState, job_id: str, after: int, stop: asyncio.Event | None = None
+) -> AsyncIterator[str]:
+    """The events of ``job_id`` after ``after``, until ``completed``, the job's deletion,
+    ``max_stream_s`` or ``stop`` (the server shuts down). While nothing happens the pause
+    between polls doubles from ``poll_interval_s`` up to ``stream_poll_max_s``; the job row
+    is read only with each keep-alive (to notice a deletion)."""
     settings = state.settings
     yield "retry: 2000\n\n"
     started = last_sent = time.monotonic()
@@ -62,7 +125,9 @@ async def stream_events(state: AppState, job_id: str, after: int) -> AsyncIterat
         if now - started >= settings.max_stream_s:
             yield f": stream lifetime reached; reconnect with Last-Event-ID: {after}\n\n"
             return
-        await asyncio.sleep(pause)
+        if await _stopped(stop, pause):
+            yield f": server shutting down; reconnect with Last-Event-ID: {after}\n\n"
+            return
         if not events:
             pause = min(2 * pause, longest)
 
@@ -94,6 +159,7 @@ class SlotStreamingResponse(StreamingResponse):
 )
 async def job_events(
     job_id: str,
+    request: Request,
     state: StateDep,
     tenant: TenantDep,
     last_event_id: Annotated[int, Header(alias="Last-Event-ID", ge=0)] = 0,
@@ -115,7 +181,7 @@ async def job_events(
             job_id=job_id,
         )
     return SlotStreamingResponse(
-        stream_events(state, job_id, start),
+        stream_events(state, job_id, start, draining(request.app)),
         state.streams,
         tenant,
         media_type="text/event-stream",

@@ -15,13 +15,15 @@ from worker.execute import Stage, StageContext, StageOutcome
 
 @dataclass
 class FakeStage:
-    """Writes ``files`` after ``steps`` progress reports; ``on_step(i)`` runs before each."""
+    """Writes ``files`` after ``steps`` progress reports; ``on_step(i)`` runs before each and
+    ``on_end()`` after the files are written (past the stage's last progress report)."""
 
     name: str
     files: dict[str, bytes] = field(default_factory=lambda: {"out.txt": b"hello"})
     steps: int = 3
     on_step: Callable[[int], None] | None = None
     fail: Exception | None = None
+    on_end: Callable[[], None] | None = None
     runs: int = 0
 
     def key(self, config: dict[str, Any]) -> dict[str, Any]:
@@ -38,6 +40,8 @@ class FakeStage:
         for name, data in self.files.items():
             (out / name).parent.mkdir(parents=True, exist_ok=True)
             (out / name).write_bytes(data)
+        if self.on_end is not None:
+            self.on_end()
         return StageOutcome("done", f"{self.name}: done")
 
 

@@ -53,6 +53,9 @@ def _add_upload_stored_bytes(conn: Connection) -> None:
 MIGRATIONS: dict[int, Callable[[Connection], None]] = {2: _add_upload_stored_bytes}
 """``MIGRATIONS[v]`` upgrades a version ``v - 1`` schema to version ``v``."""
 
+SYNC_ATTEMPTS = 3
+"""Tries of :meth:`Store.sync_api_keys` when replicas starting together collide."""
+
 IDEMPOTENCY_ABANDONED = timedelta(hours=1)
 """An in-flight idempotency record older than this is taken over (its request died); the API
 passes :attr:`Settings.idempotency_in_flight_s`."""
@@ -220,7 +223,21 @@ class Store:
 
     # ----- tenants and keys -----
     def sync_api_keys(self, keys: dict[str, str]) -> dict[str, str]:
-        """Make the stored keys exactly ``keys`` (``{key: tenant}``); returns ``{hash: tenant}``."""
+        """Make the stored keys exactly ``keys`` (``{key: tenant}``); returns ``{hash: tenant}``.
+
+        API replicas starting together race to insert the same rows: a unique violation means
+        another replica got there first, and the sync runs again (it then finds the rows).
+        """
+        for attempt in range(SYNC_ATTEMPTS):
+            try:
+                return self._sync_api_keys(keys)
+            except IntegrityError:
+                if attempt == SYNC_ATTEMPTS - 1:
+                    raise
+                logger.info("API keys were being synced by another replica; syncing again")
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _sync_api_keys(self, keys: dict[str, str]) -> dict[str, str]:
         wanted = {hash_key(k): t for k, t in keys.items()}
         with self.session() as s:
             for tenant in sorted(set(wanted.values())):
@@ -235,8 +252,13 @@ class Store:
         return wanted
 
     def ensure_tenant(self, tenant: str) -> None:
-        with self.session() as s:
-            self._ensure_tenant(s, tenant)
+        try:
+            with self.session() as s:
+                self._ensure_tenant(s, tenant)
+        except IntegrityError:  # another replica inserted it meanwhile
+            with self.session(write=False) as s:
+                if s.get(Tenant, tenant) is None:
+                    raise
 
     @staticmethod
     def _ensure_tenant(s: Session, tenant: str) -> None:

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, Literal, cast
 
+import httpx
 import pytest
 
 from service.deps import AppState
@@ -162,3 +163,16 @@ def stop_process(process: subprocess.Popen[Any], sig: int, grace: float) -> None
 def state_of(client: Any) -> AppState:
     """The running app's state (store, queue, settings) behind a TestClient."""
     return cast(AppState, client.app.state.dcseg)
+
+
+def wait_ready(client: Any, server: subprocess.Popen[Any], log: Path | None = None) -> None:
+    """Wait until a server subprocess answers ``/readyz`` with 200 (fails if it exits)."""
+
+    def ready() -> bool:
+        assert server.poll() is None, log.read_text() if log is not None else "server exited"
+        try:
+            return bool(client.get("/readyz").status_code == 200)
+        except httpx.TransportError:
+            return False
+
+    wait_for(ready, timeout=60, every=0.1)

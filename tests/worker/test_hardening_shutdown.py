@@ -25,7 +25,7 @@ from service.models import Upload
 from service.settings import Settings
 from service.store import Store
 from tests.service import test_databases
-from tests.service.conftest import AUTH_A, KEY_A, TAR, free_port, tar_bytes
+from tests.service.conftest import AUTH_A, KEY_A, TAR, free_port, tar_bytes, wait_ready
 from tests.service.conftest import wait_for as wait_until
 from tests.worker.conftest import REPO, add_job
 from tests.worker.fakes import FakeStage, slow_stages, stuck_stages
@@ -71,14 +71,7 @@ def _serve(
 
 
 def _queued_job(client: httpx.Client, scene: Path, server: subprocess.Popen[bytes]) -> str:
-    def ready() -> bool:
-        assert server.poll() is None
-        try:
-            return client.get("/readyz").status_code == 200
-        except httpx.TransportError:
-            return False
-
-    wait_until(ready, timeout=60, every=0.1)
+    wait_ready(client, server)
     upload = client.post("/v1/uploads", content=tar_bytes(scene), headers=TAR).json()
     job = client.post("/v1/jobs", json={"upload_id": upload["id"]}).json()
     return str(job["id"])

@@ -33,6 +33,7 @@ from tests.service.conftest import (
     make_settings,
     state_of,
     tar_bytes,
+    wait_ready,
 )
 from tests.service.conftest import wait_for as wait_until
 from tests.worker.conftest import REPO, add_job
@@ -175,15 +176,7 @@ def _submit(url: str, scene: Path, server: subprocess.Popen[bytes], log: Path, b
     """Upload the scene and submit a job; ``busy``: a long job, returned once it reconstructs;
     otherwise a one-step job, returned once it ended (the worker then idles)."""
     with httpx.Client(base_url=url, headers=AUTH_A, timeout=30) as client:
-
-        def ready() -> bool:
-            assert server.poll() is None, log.read_text()
-            try:
-                return client.get("/readyz").status_code == 200
-            except httpx.TransportError:
-                return False
-
-        wait_until(ready, timeout=60, every=0.1)
+        wait_ready(client, server, log)
         upload = client.post("/v1/uploads", content=tar_bytes(scene), headers=TAR).json()
         options = LONG_JOB if busy else QUICK_JOB
         body = {"upload_id": upload["id"], "options": options}

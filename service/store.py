@@ -496,16 +496,6 @@ class Store:
             )
         return job
 
-    def release_attempt(self, job_id: str, worker: str) -> bool:
-        """A run of ``worker`` stopped for a worker shutdown: it does not count towards
-        ``max_attempts``. Returns whether the worker still held the job."""
-        with self.session() as s:
-            job = self._owned(s, job_id, worker)
-            if job is None:
-                return False
-            job.attempts = max(0, job.attempts - 1)
-            return True
-
     def release_attempts_of(self, worker: str) -> list[str]:
         """Runs of ``worker``, or of any worker id under it (``host:pid`` covers every
         ``host:pid:thread``), stopped for a shutdown: each job still held by one of them
@@ -540,14 +530,6 @@ class Store:
                 return "lost"
             job.heartbeat_at = self._now(s)
             return "cancel" if job.cancel_requested else "ok"
-
-    def expire_lease(self, job_id: str, worker: str) -> None:
-        """``worker`` gives the job up unfinished (shutdown): its lease is made stale at once,
-        so the next delivery, or the recovery sweep, resumes the job without waiting."""
-        with self.session() as s:
-            job = self._owned(s, job_id, worker)
-            if job is not None:
-                job.heartbeat_at = self._now(s) - timedelta(days=1)  # stale for any heartbeat_s
 
     def report_progress(
         self,

@@ -46,6 +46,10 @@ class Storage(Protocol):
     backend: str
     """``local`` or ``s3``."""
 
+    def setup(self) -> None:
+        """Create what the storage needs (API startup): the folder or the bucket."""
+        ...
+
     def check(self) -> None:
         """Raise unless the storage is reachable and writable (``/readyz``)."""
         ...
@@ -116,6 +120,9 @@ class LocalStorage:
 
     def __init__(self, root: Path) -> None:
         self.root = root
+
+    def setup(self) -> None:
+        self.root.mkdir(parents=True, exist_ok=True)
 
     def check(self) -> None:
         import tempfile

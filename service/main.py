@@ -171,6 +171,7 @@ def open_state(settings: Settings) -> AppState:
         logger.warning("no API keys: authentication is off (tenant %r, %s)", LOCAL_TENANT, reach)
     queue = make_queue(settings)
     storage = make_storage(settings)
+    storage.setup()
     return AppState(
         settings=settings,
         store=store,

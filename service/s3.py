@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 
-class IntegrityError(Exception):
+class IntegrityError(ValueError):
     """A fetched object's size or SHA-256 differs from what its manifest recorded."""
 
 
@@ -97,7 +97,7 @@ class S3Storage:
     def key(self, tenant: str, relative: str) -> str:
         return self.tenant_prefix(tenant) + relative
 
-    def ensure_bucket(self) -> None:
+    def setup(self) -> None:
         """Create the bucket unless it exists (API startup)."""
         from botocore.exceptions import ClientError
 

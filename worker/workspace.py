@@ -171,21 +171,21 @@ class ScratchWorkspace:
         from dcseg.io.archive import safe_extract
 
         archive = self.folder / "upload.archive"
-        self._reserve(upload.size, f"upload {upload.id}")
+        extracted = upload.stored_bytes or 0  # measured when the upload was validated
+        self._reserve(upload.size + extracted, f"upload {upload.id} and its extraction")
         key = self.storage.key(self.tenant, f"uploads/{upload.id}/archive")
         self.storage.fetch(key, archive, upload.size, upload.sha256)
-        left = self.settings.scratch_max_bytes - self.used
         data = self.folder / "input"
         safe_extract(
             archive,
             data,
             max_entries=self.settings.max_archive_entries,
-            max_total_bytes=max(1, min(self.settings.max_extracted_bytes, left)),
+            max_total_bytes=self.settings.max_extracted_bytes,
             max_directory_bytes=self.settings.max_archive_directory_bytes,
             max_header_bytes=self.settings.max_archive_header_bytes,
         )
         archive.unlink()
-        self.used += tree_bytes(data) - upload.size
+        self.used += tree_bytes(data) - upload.size - extracted
         return data / str(upload.summary.get("root", "."))
 
     def _fetch_stage(self, entry: dict[str, Any], dest: Path) -> None:

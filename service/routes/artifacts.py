@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Response
@@ -10,6 +11,7 @@ from fastapi.responses import StreamingResponse
 from service import artifacts
 from service.deps import StateDep, TenantDep
 from service.jobs import etag_matches
+from service.models import utcnow
 from service.problems import ApiProblem, problem_responses
 from service.schemas import ArtifactPublic, ArtifactsPublic
 
@@ -25,18 +27,24 @@ def _check_job(job_id: str, state: StateDep, tenant: str) -> None:
     "/{job_id}/artifacts", response_model=ArtifactsPublic, responses=problem_responses(401, 404)
 )
 def list_artifacts(job_id: str, state: StateDep, tenant: TenantDep) -> ArtifactsPublic:
-    """The files of the job's finished stages (immutable once listed)."""
+    """The files of the job's finished stages (immutable once listed). With object storage
+    each also has a presigned ``download_url`` valid for ``DCSEG_PRESIGN_EXPIRY_S``."""
     _check_job(job_id, state, tenant)
-    items = [
-        ArtifactPublic(
-            name=a.name,
-            media_type=a.media_type,
-            size=a.size,
-            sha256=a.sha256,
-            url=f"/v1/jobs/{job_id}/artifacts/{a.name}",
+    expires = utcnow() + timedelta(seconds=state.settings.presign_expiry_s)
+    items = []
+    for a in artifacts.list_artifacts(state.storage, tenant, job_id):
+        presigned = state.storage.presign(tenant, a.item)
+        items.append(
+            ArtifactPublic(
+                name=a.name,
+                media_type=a.media_type,
+                size=a.size,
+                sha256=a.sha256,
+                url=f"/v1/jobs/{job_id}/artifacts/{a.name}",
+                download_url=presigned,
+                download_url_expires_at=expires if presigned else None,
+            )
         )
-        for a in artifacts.list_artifacts(state.storage, tenant, job_id)
-    ]
     return ArtifactsPublic(artifacts=items)
 
 

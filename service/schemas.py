@@ -159,3 +159,24 @@ class InstancesPublic(BaseModel):
     """Absent on the last page."""
     scene_sha256: str | None = None
     """SHA-256 of the ``scene_labelled.ply`` whose ``instance_id`` column the ids index."""
+
+
+ExportFormat = Literal["ply", "spz", "splat", "glb"]
+"""Export formats (``dcseg.export.FORMATS``)."""
+
+
+class ExportLinks(BaseModel):
+    self: str
+
+
+class ExportPublic(BaseModel):
+    """An export of a job (the whole scene or one instance) in one format."""
+
+    format: str
+    instance: int | None
+    """The object exported alone; None = the whole scene."""
+    status: Literal["succeeded", "running"]
+    """``running``: the export is being made (202); ask again after ``Retry-After``."""
+    files: list[ArtifactPublic]
+    """The export's files (empty while it runs), downloaded like artifacts (ETag, Range)."""
+    links: ExportLinks

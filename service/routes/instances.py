@@ -8,6 +8,7 @@ from fastapi import APIRouter, Path, Query
 
 from service import instances
 from service.deps import StateDep, TenantDep
+from service.exports import FORMATS
 from service.problems import problem_responses
 from service.schemas import InstanceLinks, InstancePublic, InstancesPublic
 from worker.contract import JobPaths
@@ -27,7 +28,8 @@ def instance_url(job_id: str, k: int) -> str:
 
 def instance_public(job_id: str, record: dict[str, Any]) -> InstancePublic:
     k = int(record["id"])
-    links = InstanceLinks(self=instance_url(job_id, k))
+    url = instance_url(job_id, k)
+    links = InstanceLinks(self=url, exports={f: f"{url}/exports/{f}" for f in FORMATS})
     return InstancePublic(**{**record, "size": instances.extent(record), "links": links})
 
 

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from datetime import timedelta
+from functools import partial
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Response
 from fastapi.responses import StreamingResponse
 
 from service import artifacts
+from service.blobstore import read_local
 from service.deps import StateDep, TenantDep
 from service.jobs import etag_matches
 from service.models import utcnow
@@ -87,7 +90,13 @@ def download_artifact(
 ) -> Response:
     """Download one artifact; honours ``Range: bytes=a-b``, ``If-Range`` and ``If-None-Match``
     (``*`` and weak tags match)."""
-    return send_file(_find(job_id, name, state, tenant), range_header, if_range, if_none_match)
+    found = _find(job_id, name, state, tenant)
+    read = partial(state.storage.read, tenant, found.item)
+    return send_file(found, range_header, if_range, if_none_match, read)
+
+
+Reader = Callable[[int, int], Iterator[bytes]]
+"""``read(start, end)``: bytes ``start..end`` (inclusive) of a file, in chunks."""
 
 
 def send_file(
@@ -95,21 +104,26 @@ def send_file(
     range_header: str | None,
     if_range: str | None,
     if_none_match: str | None,
+    read: Reader | None = None,
 ) -> Response:
-    """The download of ``found`` (artifact or export): ETag, Range, If-Range, If-None-Match."""
+    """The download of ``found`` (artifact or export): ETag, Range, If-Range, If-None-Match.
+    ``read`` defaults to reading the local file ``found.item.path``."""
+    if read is None:
+        assert found.item.path is not None
+        read = partial(read_local, found.item.path)
     headers = _headers(found)
     if etag_matches(if_none_match, found.etag):
         return Response(status_code=304, headers=headers)
     use_range = if_range is None or if_range.strip() == found.etag
     span = artifacts.parse_range(range_header, found.size) if use_range else None
     if span is None:
-        body = state.storage.read(tenant, found.item, 0, found.size - 1)
+        body = read(0, found.size - 1)
         headers["Content-Length"] = str(found.size)
         return StreamingResponse(body, media_type=found.media_type, headers=headers)
     start, end = span
     headers["Content-Range"] = f"bytes {start}-{end}/{found.size}"
     headers["Content-Length"] = str(end - start + 1)
-    body = state.storage.read(tenant, found.item, start, end)
+    body = read(start, end)
     return StreamingResponse(body, status_code=206, media_type=found.media_type, headers=headers)
 
 

@@ -13,6 +13,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, StreamingResponse
 
 from service import artifacts, exports, instances
+from service.blobstore import StoredFile
 from service.deps import AppState, StateDep, TenantDep
 from service.problems import ApiProblem, problem_responses
 from service.routes.artifacts import IfNoneMatch, IfRange, RangeHeader, send_file, send_headers
@@ -50,11 +51,21 @@ class Target:
 
 def _target(state: AppState, tenant: str, job_id: str, selection: exports.Selection) -> Target:
     """404 for an unknown job or instance, 409 for an unfinished job."""
-    paths = instances.finished_job(state.settings, state.store.get_job(job_id, tenant), job_id)
+    if state.storage.backend != "local":
+        raise ApiProblem(
+            501,
+            "exports are made from the job's files on the API's disk and need local storage"
+            " (DCSEG_STORAGE_BACKEND=local); download the artifacts and run `dcseg export`",
+            slug="exports-need-local-storage",
+        )
+    job = state.store.get_job(job_id, tenant)
+    paths = instances.finished_job(state.settings, state.storage, job, job_id)
     records = instances.read_instances(paths).get("instances", [])
     if selection.instance is not None:
         instances.find_instance(records, job_id, selection.instance)
-    return Target(job_id, exports.run_folder(paths), selection.folder(paths.folder), selection)
+    return Target(
+        job_id, exports.run_folder(paths.paths), selection.folder(paths.folder), selection
+    )
 
 
 def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
@@ -80,7 +91,7 @@ def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
 
 
 def _artifact(item: exports.ExportFile) -> artifacts.Artifact:
-    return artifacts.Artifact(item.name, item.path, item.size, item.sha256)
+    return artifacts.Artifact(StoredFile(item.name, item.size, item.sha256, path=item.path))
 
 
 def _failure(target: Target, failed: exports.Failed) -> ApiProblem:
@@ -117,7 +128,7 @@ async def _serve(
 
 EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
     202: {"model": ExportPublic, "description": "being made; ask again after Retry-After"},
-    **problem_responses(401, 404, 409, 422, 500),
+    **problem_responses(401, 404, 409, 422, 500, 501),
 }
 
 
@@ -166,12 +177,12 @@ FILE_RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {"content": {"application/octet-stream": {}}, "description": "the file"},
     206: {"description": "Partial Content"},
     304: {"description": "Not Modified"},
-    **problem_responses(401, 404, 409, 416, 422),
+    **problem_responses(401, 404, 409, 416, 422, 501),
 }
 HEAD_RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {"description": "the headers of the download, no body"},
     304: {"description": "Not Modified"},
-    **problem_responses(401, 404, 409, 422),
+    **problem_responses(401, 404, 409, 422, 501),
 }
 SCENE_FILE = "/{job_id}/exports/{format}/{name:path}"
 INSTANCE_FILE = "/{job_id}/instances/{k}/exports/{format}/{name:path}"

@@ -11,15 +11,15 @@ from service.deps import StateDep, TenantDep
 from service.exports import FORMATS
 from service.problems import problem_responses
 from service.schemas import InstanceLinks, InstancePublic, InstancesPublic
-from worker.contract import JobPaths
 
 router = APIRouter(prefix="/v1/jobs", tags=["instances"])
 
 InstanceId = Annotated[int, Path(ge=1, le=2**31 - 1, description="instance id (from 1)")]
 
 
-def _paths(job_id: str, state: StateDep, tenant: str) -> JobPaths:
-    return instances.finished_job(state.settings, state.store.get_job(job_id, tenant), job_id)
+def _paths(job_id: str, state: StateDep, tenant: str) -> instances.FinishedJob:
+    job = state.store.get_job(job_id, tenant)
+    return instances.finished_job(state.settings, state.storage, job, job_id)
 
 
 def instance_url(job_id: str, k: int) -> str:

@@ -73,7 +73,13 @@ def matcher_table(run: Path, scene: Path, current_defaults: bool = False) -> dic
     rows: dict[str, Any] = {}
     for mode in ("assignment", "matching"):
         c = replace(cfg, assign=replace(cfg.assign, mode=mode))
-        seg = segment_scene(saved.trained, saved.semantic, len(saved.vocabulary), c)
+        seg = segment_scene(
+            saved.trained,
+            saved.semantic,
+            len(saved.vocabulary),
+            c,
+            class_names=saved.vocabulary.names,
+        )
         m = evaluate_segmentation(
             saved.trained, seg.labels(), saved.semantic, gt, saved.vocabulary, c
         )

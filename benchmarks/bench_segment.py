@@ -183,7 +183,13 @@ def score_segmentation(
     """Segment the saved state with the current code and defaults, export, score the exports."""
     cfg = current_config(saved, cluster_seed)
     start = time.perf_counter()
-    seg = segment_scene(saved.trained, saved.semantic, len(saved.vocabulary), cfg)
+    seg = segment_scene(
+        saved.trained,
+        saved.semantic,
+        len(saved.vocabulary),
+        cfg,
+        class_names=saved.vocabulary.names,
+    )
     seconds = time.perf_counter() - start
     out = Path(tempfile.mkdtemp(dir=tmp))
     write_outputs(out, saved.trained, seg, saved.vocabulary, [])

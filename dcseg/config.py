@@ -30,6 +30,9 @@ class CaptureOptions:
         depth_trunc: depth beyond this many metres is set to 0 (invalid). None = keep all.
         intrinsics: ``(fx, fy, cx, cy)`` at the native colour resolution, for layouts that do
             not store intrinsics (7-Scenes, Replica without ``cam_params.json``).
+        min_confidence: for layouts that store an ARKit depth confidence per pixel (Record3D,
+            Polycam; levels 0 = low, 1 = medium, 2 = high), depth whose confidence is below this
+            level is set to 0 (invalid). 0 = keep all depth (confidence files are not read).
     """
 
     stride: int = 1
@@ -37,6 +40,7 @@ class CaptureOptions:
     size: tuple[int, int] | None = None
     depth_trunc: float | None = None
     intrinsics: tuple[float, float, float, float] | None = None
+    min_confidence: int = 0
 
     def __post_init__(self) -> None:
         if self.stride < 1:
@@ -47,6 +51,8 @@ class CaptureOptions:
             raise ValueError(f"size must be positive, got {self.size}")
         if self.depth_trunc is not None and self.depth_trunc <= 0:
             raise ValueError(f"depth_trunc must be > 0, got {self.depth_trunc}")
+        if self.min_confidence not in (0, 1, 2):
+            raise ValueError(f"min_confidence must be 0, 1 or 2, got {self.min_confidence}")
 
 
 @dataclass(frozen=True)

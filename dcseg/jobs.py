@@ -35,6 +35,7 @@ from dcseg.io.run_output import (
     load_run,
     preview_indices,
     publish,
+    save_clusters,
     save_semantic,
     save_state,
     staging_dir,
@@ -301,7 +302,9 @@ def _finish(
     tmp = staging_dir(out) if tmp is None else tmp
     try:
         with clock.phase("segment"):
-            segmentation = segment_scene(trained, saved.semantic, len(vocabulary), cfg, on_progress)
+            segmentation = segment_scene(
+                trained, saved.semantic, len(vocabulary), cfg, on_progress, vocabulary.names
+            )
         with clock.phase("evaluate"):
             metrics = None if gt is None else _evaluate(saved, segmentation.labels(), gt, cfg, tmp)
         with clock.phase("write"):
@@ -309,6 +312,7 @@ def _finish(
                 tmp, trained, segmentation, vocabulary, saved.previews, size=_output_size(saved)
             )
             _write_state(tmp, saved, train_state)
+            save_clusters(tmp / "state", segmentation)
         record = _record(saved, cfg, segmentation, clock, metrics)
         write_json(tmp / "run.json", record)
         publish(tmp, out)
@@ -325,7 +329,7 @@ def _write_state(tmp: Path, saved: SavedRun, full: bool) -> None:
         save_state(tmp, saved.trained, saved.semantic, saved.vocabulary, saved.previews)
         return
     parent = Path(str(saved.record["parent"])) / "state"
-    _copy_tree(parent, tmp / "state", skip=("semantic", "vocabulary.json"))
+    _copy_tree(parent, tmp / "state", skip=("semantic", "vocabulary.json", "clusters.npz"))
     save_semantic(tmp / "state", saved.semantic, saved.vocabulary)
 
 
@@ -368,8 +372,9 @@ def _record(
         "counts": {
             "gaussians": len(saved.trained.gaussians),
             "views": len(saved.trained.views),
-            "clusters": segmentation.n_instances,
+            "clusters": segmentation.n_clusters,
             "labelled_clusters": int((a.labels >= 0).sum()),
+            "instances": segmentation.n_instances,
             "labelled_gaussians": int((segmentation.semantic_ids >= 0).sum()),
         },
         "metrics_summary": None if metrics is None else metrics["summary"],

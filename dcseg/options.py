@@ -178,6 +178,13 @@ class CaptureOptionsIn(_Strict):
     intrinsics: tuple[Finite, Finite, Finite, Finite] | None = Field(
         default=None, description="(fx, fy, cx, cy) for layouts that store none"
     )
+    min_confidence: int = Field(
+        default=0,
+        ge=0,
+        le=2,
+        description="Record3D/Polycam: drop depth below this ARKit confidence (0 low, 1 medium, "
+        "2 high; 0 = keep all)",
+    )
 
 
 MAX_KEYFRAMES = 100_000

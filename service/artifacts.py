@@ -21,6 +21,10 @@ MEDIA_TYPES = {
     ".npy": "application/octet-stream",
     ".txt": "text/plain",
     ".png": "image/png",
+    ".glb": "model/gltf-binary",
+    ".obj": "model/obj",
+    ".spz": "application/octet-stream",
+    ".splat": "application/octet-stream",
 }
 _RANGE = re.compile(r"^bytes=(\d*)-(\d*)$", re.IGNORECASE)
 

@@ -22,8 +22,9 @@ from fastapi.concurrency import run_in_threadpool
 from dcseg import __version__
 from service import problems
 from service.deps import LOCAL_TENANT, AppState, make_limiter
+from service.exports import Exporter
 from service.queue import JobQueue, make_queue
-from service.routes import artifacts, events, health, jobs, uploads
+from service.routes import artifacts, events, exports, health, instances, jobs, uploads
 from service.settings import Settings, get_settings
 from service.store import Store
 from service.uploads import remove_expired_uploads
@@ -188,6 +189,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.draining = asyncio.Event()  # set by events.begin_draining at shutdown
         state = open_state(current)
         app.state.dcseg = state
+        app.state.exporter = Exporter(current)
         swept = sweep(state.store, state.queue, current)
         local = None
         if current.broker_url is None and current.embedded_worker != "off":
@@ -204,6 +206,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            app.state.exporter.close()
             await shut_down([recovery, housekeeping], local, current.shutdown_grace_s)
             state.store.close()
             undo_drain()
@@ -215,7 +218,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     problems.install(app)
-    for module in (uploads, jobs, events, artifacts, health):
+    for module in (uploads, jobs, events, artifacts, instances, exports, health):
         app.include_router(module.router)
     return app
 

@@ -236,6 +236,21 @@ class Settings(BaseSettings):
     device: str = "auto"
     """Worker device: ``auto`` (CUDA when available), ``cpu``, ``cuda``, ``cuda:1``..."""
 
+    export_time_limit_s: float = Field(default=600.0, gt=0)
+    """Longest an on-demand export (``/exports/{format}``) may run; its process is then killed
+    and the export fails (``export-timed-out``, cached until this limit changes)."""
+
+    max_export_bytes: int = Field(default=2 * GIB, ge=1)
+    """Largest total size of one export's files; a larger one is discarded and fails
+    (``export-too-large``)."""
+
+    max_concurrent_exports: int = Field(default=2, ge=1)
+    """Exports one API process makes at once (one child process each); more wait in line."""
+
+    export_wait_s: float = Field(default=20.0, ge=0)
+    """How long an export request waits for the export to be made before answering 202 with
+    ``Retry-After`` (the export goes on; ask again)."""
+
     @property
     def db_url(self) -> str:
         """The effective database URL."""

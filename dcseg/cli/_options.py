@@ -33,7 +33,8 @@ def parse_intrinsics(text: str) -> tuple[float, float, float, float]:
 
 
 def add_capture_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``--stride --max-frames --size --depth-trunc --intrinsics`` to a verb's parser."""
+    """Add ``--stride --max-frames --size --depth-trunc --intrinsics --min-confidence`` to a
+    verb's parser."""
     group = parser.add_argument_group("capture options")
     group.add_argument("--stride", type=int, default=1, help="keep every N-th frame")
     group.add_argument("--max-frames", type=int, help="keep at most N frames (after --stride)")
@@ -43,6 +44,13 @@ def add_capture_options(parser: argparse.ArgumentParser) -> None:
         "--intrinsics",
         type=parse_intrinsics,
         help="fx,fy,cx,cy at native resolution, for layouts without stored intrinsics",
+    )
+    group.add_argument(
+        "--min-confidence",
+        type=int,
+        default=0,
+        help="Record3D/Polycam: drop depth below this ARKit confidence level "
+        "(0 low, 1 medium, 2 high; default 0 = keep all)",
     )
 
 
@@ -81,6 +89,7 @@ FLAGS = {
     "capture.size": "--size",
     "capture.depth_trunc": "--depth-trunc",
     "capture.intrinsics": "--intrinsics",
+    "capture.min_confidence": "--min-confidence",
     "segment.scale": "--scale",
     "segment.matcher": "--matcher",
     "segment.seed": "--seed",
@@ -98,6 +107,7 @@ def capture_fields(args: argparse.Namespace) -> dict[str, Any]:
         "size": args.size,
         "depth_trunc": args.depth_trunc,
         "intrinsics": args.intrinsics,
+        "min_confidence": args.min_confidence,
     }
 
 

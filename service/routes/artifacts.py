@@ -80,7 +80,16 @@ def download_artifact(
 ) -> Response:
     """Download one artifact; honours ``Range: bytes=a-b``, ``If-Range`` and ``If-None-Match``
     (``*`` and weak tags match)."""
-    found = _find(job_id, name, state, tenant)
+    return send_file(_find(job_id, name, state, tenant), range_header, if_range, if_none_match)
+
+
+def send_file(
+    found: artifacts.Artifact,
+    range_header: str | None,
+    if_range: str | None,
+    if_none_match: str | None,
+) -> Response:
+    """The download of ``found`` (artifact or export): ETag, Range, If-Range, If-None-Match."""
     headers = _headers(found)
     if etag_matches(if_none_match, found.etag):
         return Response(status_code=304, headers=headers)
@@ -115,7 +124,11 @@ def artifact_headers(
 ) -> Response:
     """The headers a ``GET`` of the whole artifact sends (``Content-Length``, ``ETag``,
     ``Accept-Ranges``, ``Content-Type``), without a body; ``Range`` is ignored (RFC 9110 14.2)."""
-    found = _find(job_id, name, state, tenant)
+    return send_headers(_find(job_id, name, state, tenant), if_none_match)
+
+
+def send_headers(found: artifacts.Artifact, if_none_match: str | None) -> Response:
+    """The headers of a whole download of ``found``, no body (``HEAD``)."""
     headers = _headers(found)
     if etag_matches(if_none_match, found.etag):
         return Response(status_code=304, headers=headers)

@@ -6,6 +6,8 @@ Supported layouts (see each module's docstring for the details):
 * ``scannet``: ScanNet export, ``color/`` + ``depth/`` + ``pose/`` (:mod:`.scannet`);
 * ``replica``: NICE-SLAM Replica, ``results/`` + ``traj.txt`` (:mod:`.replica`);
 * ``nerfstudio``: ``transforms.json`` with depth (:mod:`.nerfstudio`);
+* ``record3d``: Record3D's ``.r3d`` export, ``metadata`` + ``rgbd/`` (:mod:`.record3d`);
+* ``polycam``: Polycam's raw data export, ``keyframes/`` (:mod:`.polycam`);
 * ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`).
 
 Example:
@@ -27,7 +29,15 @@ import numpy as np
 from dcseg.config import NATIVE_BUDGET, CaptureOptions, FrameBudget
 from dcseg.errors import InputError
 from dcseg.io.archive import is_archive, safe_extract
-from dcseg.io.captures import manifest, nerfstudio, replica, scannet, sevenscenes
+from dcseg.io.captures import (
+    manifest,
+    nerfstudio,
+    polycam,
+    record3d,
+    replica,
+    scannet,
+    sevenscenes,
+)
 from dcseg.io.captures.common import FrameSpec, Listing, load_capture, read_colour, rel, select
 from dcseg.io.captures.plan import CaptureMeta, CapturePlan, plan_capture
 from dcseg.io.images import image_size
@@ -57,6 +67,8 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "scannet": (scannet.matches, scannet.list_frames, "color/+depth/+pose/"),
     "replica": (replica.matches, replica.list_frames, "results/+traj.txt"),
     "nerfstudio": (nerfstudio.matches, nerfstudio.list_frames, "transforms.json"),
+    "record3d": (record3d.matches, record3d.list_frames, "metadata+rgbd/"),
+    "polycam": (polycam.matches, polycam.list_frames, "keyframes/images+cameras/"),
     "7scenes": (sevenscenes.matches, sevenscenes.list_frames, "frame-*.color.*"),
 }
 """Layout name -> (detector, frame lister, marker shown in messages), in detection order."""
@@ -69,7 +81,8 @@ def detect_layout(folder: Path) -> str:
         folder: the capture folder.
 
     Returns:
-        One of ``"dcseg"``, ``"scannet"``, ``"replica"``, ``"nerfstudio"``, ``"7scenes"``.
+        One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
+        ``"nerfstudio"``, ``"record3d"``, ``"polycam"``, ``"7scenes"``).
 
     Raises:
         InputError: no layout's markers are found.
@@ -116,7 +129,8 @@ def list_capture(
 ) -> Iterator[CaptureListing]:
     """List a capture's frames without decoding any image.
 
-    An archive is extracted safely into a temporary folder that lives as long as the block.
+    An archive (or a Record3D ``.r3d`` file, a zip) is extracted safely into a temporary folder
+    that lives as long as the block.
 
     Args:
         path: a capture folder or an archive of one.
@@ -135,9 +149,9 @@ def list_capture(
         return
     if not path.exists():
         raise InputError.single(str(path), "does not exist")
-    if not is_archive(path):
+    if not (is_archive(path) or path.suffix.lower() == record3d.R3D_SUFFIX):
         raise InputError.single(
-            str(path), "not a folder or a .zip/.tar/.tar.gz/.tgz archive of one"
+            str(path), "not a folder, a .zip/.tar/.tar.gz/.tgz archive of one, or a .r3d file"
         )
     with tempfile.TemporaryDirectory(prefix="dcseg-capture-") as tmp:
         folder = safe_extract(path, Path(tmp))
@@ -148,10 +162,11 @@ def read_capture(path: str | Path, options: CaptureOptions = _DEFAULT_OPTIONS) -
     """Read a posed RGB-D capture from a folder or an archive of one.
 
     Args:
-        path: a capture folder, or a ``.zip``/``.tar``/``.tar.gz``/``.tgz`` holding one (it is
+        path: a capture folder, a Record3D ``.r3d`` file, or a ``.zip``/``.tar``/``.tar.gz``/
+            ``.tgz`` holding a capture folder (it is
             extracted safely into a temporary folder, removed once the frames are in memory;
             the capture's ``root`` is then the archive path).
-        options: stride, max_frames, size, depth_trunc and intrinsics.
+        options: stride, max_frames, size, depth_trunc, intrinsics and min_confidence.
 
     Returns:
         The validated capture; frames hold their arrays in memory.

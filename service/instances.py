@@ -11,7 +11,6 @@ import hashlib
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from service.artifacts import find_artifact
@@ -45,28 +44,7 @@ class Filter:
         return hashlib.sha256(raw).hexdigest()[:16]
 
 
-@dataclass(frozen=True)
-class FinishedJob:
-    """A succeeded job: its (local) folders and the storage its artifacts are read from."""
-
-    paths: JobPaths
-    storage: Storage
-    tenant: str
-
-    @property
-    def job_id(self) -> str:
-        return self.paths.job_id
-
-    @property
-    def folder(self) -> Path:
-        return self.paths.folder
-
-    @property
-    def output(self) -> Path:
-        return self.paths.output
-
-
-def finished_job(settings: Settings, storage: Storage, job: Job | None, job_id: str) -> FinishedJob:
+def finished_job(settings: Settings, job: Job | None, job_id: str) -> JobPaths:
     """The folders of a succeeded job; 404 when it is unknown, 409 when it has not succeeded."""
     if job is None:
         raise ApiProblem(404, f"no job {job_id!r}", slug="not-found", job_id=job_id)
@@ -77,21 +55,21 @@ def finished_job(settings: Settings, storage: Storage, job: Job | None, job_id: 
             slug="job-unfinished",
             job_id=job_id,
         )
-    return FinishedJob(JobPaths(settings.storage_dir, job_id), storage, job.tenant_id)
+    return JobPaths(settings.storage_dir, job_id)
 
 
-def _read_json(paths: FinishedJob, name: str) -> dict[str, Any] | None:
-    found = find_artifact(paths.storage, paths.tenant, paths.job_id, name)
+def _read_json(storage: Storage, tenant: str, job_id: str, name: str) -> dict[str, Any] | None:
+    found = find_artifact(storage, tenant, job_id, name)
     if found is None:
         return None
-    raw = b"".join(paths.storage.read(paths.tenant, found.item, 0, found.size - 1))
+    raw = b"".join(storage.read(tenant, found.item, 0, found.size - 1))
     body: dict[str, Any] = json.loads(raw.decode("utf-8"))
     return body
 
 
-def read_instances(paths: FinishedJob) -> dict[str, Any]:
+def read_instances(storage: Storage, tenant: str, paths: JobPaths) -> dict[str, Any]:
     """The job's ``instances.json``; 404 when the segment stage was skipped (no masks)."""
-    body = _read_json(paths, INSTANCES)
+    body = _read_json(storage, tenant, paths.job_id, INSTANCES)
     if body is None:
         raise ApiProblem(
             404,
@@ -103,9 +81,11 @@ def read_instances(paths: FinishedJob) -> dict[str, Any]:
     return body
 
 
-def vocabulary(paths: FinishedJob, records: Sequence[dict[str, Any]]) -> set[str]:
+def vocabulary(
+    storage: Storage, tenant: str, paths: JobPaths, records: Sequence[dict[str, Any]]
+) -> set[str]:
     """The class names of the job (``labels.json``, else those its instances carry)."""
-    body = _read_json(paths, LABELS)
+    body = _read_json(storage, tenant, paths.job_id, LABELS)
     if body is None:
         return {str(r["label"]) for r in records if r.get("label") is not None}
     return {str(item["name"]) for item in body.get("labels", [])}

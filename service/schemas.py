@@ -207,7 +207,7 @@ class InstancePublic(BaseModel):
     size: list[float]
     """Extent of the axis-aligned box per world axis (``bbox_max - bbox_min``, metres)."""
     n_views: int | None = None
-    """Visibility: the number of views that voted for the object's class."""
+    """Visibility: the number of views in which the object covers at least one pixel."""
     links: InstanceLinks
 
 

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from datetime import timedelta
-from functools import partial
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Response
 from fastapi.responses import StreamingResponse
 
 from service import artifacts
-from service.blobstore import read_local
 from service.deps import StateDep, TenantDep
 from service.jobs import etag_matches
 from service.models import utcnow
@@ -91,26 +89,25 @@ def download_artifact(
     """Download one artifact; honours ``Range: bytes=a-b``, ``If-Range`` and ``If-None-Match``
     (``*`` and weak tags match)."""
     found = _find(job_id, name, state, tenant)
-    read = partial(state.storage.read, tenant, found.item)
-    return send_file(found, range_header, if_range, if_none_match, read)
+
+    def read(start: int, end: int) -> Iterator[bytes]:
+        return state.storage.read(tenant, found.item, start, end)
+
+    return send_file(found, read, range_header, if_range, if_none_match)
 
 
 Reader = Callable[[int, int], Iterator[bytes]]
-"""``read(start, end)``: bytes ``start..end`` (inclusive) of a file, in chunks."""
+"""Bytes ``start..end`` (inclusive) of the file being sent, in chunks."""
 
 
 def send_file(
     found: artifacts.Artifact,
+    read: Reader,
     range_header: str | None,
     if_range: str | None,
     if_none_match: str | None,
-    read: Reader | None = None,
 ) -> Response:
-    """The download of ``found`` (artifact or export): ETag, Range, If-Range, If-None-Match.
-    ``read`` defaults to reading the local file ``found.item.path``."""
-    if read is None:
-        assert found.item.path is not None
-        read = partial(read_local, found.item.path)
+    """The download of ``found`` (artifact or export): ETag, Range, If-Range, If-None-Match."""
     headers = _headers(found)
     if etag_matches(if_none_match, found.etag):
         return Response(status_code=304, headers=headers)

@@ -54,6 +54,8 @@ def test_glb_has_one_node_per_object_with_its_class_and_score(run: Path, glb: Pa
         assert extras["class"] == record["label"] == CLASSES[extras["class_id"]]
         assert extras["score"] == pytest.approx(record["score"])
         assert extras["name"] == node
+    table = json.loads((glb.parent / "instances.glb.json").read_text())
+    assert sorted(r["node"] for r in table["instances"]) == nodes
 
 
 def test_glb_nodes_are_turned_to_y_up_and_meshes_decimated(glb: Path) -> None:

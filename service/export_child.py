@@ -14,15 +14,26 @@ RUN = "segment"
 """What clients call the run folder the exporter reads (the job's segment stage)."""
 
 
-def run_exporter(target: str, run: str, out: str, fmt: str, instances: list[int] | None) -> None:
-    """Child process: run the exporter, write ``result.json`` beside ``out``."""
+def run_exporter(
+    target: str,
+    run: str,
+    out: str,
+    fmt: str,
+    instances: list[int] | None,
+    options: dict[str, Any],
+) -> None:
+    """Child process: run the exporter, write ``result.json`` beside ``out``.
+
+    ``options`` are ``dcseg.export.ExportOptions`` fields (none = the exporter's defaults)."""
     from dcseg.errors import InputError
 
     result: dict[str, Any]
     module, _, name = target.partition(":")
     try:
         export_run = getattr(importlib.import_module(module), name)
-        paths = export_run(Path(run), Path(out), fmt, instances=instances)
+        paths = export_run(
+            Path(run), Path(out), fmt, instances=instances, options=_options(options)
+        )
         result = {"files": [str(Path(p)) for p in paths]}
     except InputError as error:
         problems = [{"path": p.path, "reason": p.reason} for p in error.problems]
@@ -41,3 +52,9 @@ def _scrubbed(problems: list[dict[str, str]], run: str, out: str) -> list[dict[s
         return text.replace(run, RUN).replace(out, "export")
 
     return [{k: clean(v) for k, v in p.items()} for p in problems]
+
+
+def _options(values: dict[str, Any]) -> Any:
+    if not values:
+        return None
+    return importlib.import_module("dcseg.export").ExportOptions(**values)

@@ -56,13 +56,20 @@ class Selection:
 
     fmt: str
     instance: int | None = None
+    options: tuple[tuple[str, str | int], ...] = ()
+    """``ExportOptions`` fields that differ from their defaults, sorted by name."""
 
     @property
     def folder_name(self) -> str:
         return "scene" if self.instance is None else f"instance-{self.instance}"
 
+    @property
+    def variant(self) -> str:
+        """The cache folder of the format and options: ``ply``, ``ply.colour-class.sh_degree-3``."""
+        return self.fmt + "".join(f".{name}-{value}" for name, value in self.options)
+
     def folder(self, job_folder: Path) -> Path:
-        return job_folder / "exports" / self.folder_name / self.fmt
+        return job_folder / "exports" / self.folder_name / self.variant
 
 
 @dataclass(frozen=True)
@@ -184,10 +191,18 @@ class Exporter:
         """Run the exporter in a child; the manifest or error record of its outcome."""
         out = tmp / "files"
         instances = None if selection.instance is None else [selection.instance]
+        options = dict(selection.options)
         context = multiprocessing.get_context("spawn")
         child = context.Process(
             target=run_exporter,
-            args=(self.target, str(run), str(out), selection.fmt, instances),
+            args=(
+                self.target,
+                str(run),
+                str(out),
+                selection.fmt,
+                instances,
+                dict(selection.options),
+            ),
             name=f"export-{selection.fmt}",
             daemon=True,
         )
@@ -254,7 +269,13 @@ class Exporter:
                 f"the {selection.fmt} export would be {total} bytes, above"
                 f" DCSEG_MAX_EXPORT_BYTES ({self.settings.max_export_bytes})",
             )
-        return {"format": selection.fmt, "instance": selection.instance, "files": files}
+        options = dict(selection.options)
+        return {
+            "format": selection.fmt,
+            "instance": selection.instance,
+            "options": options,
+            "files": files,
+        }
 
     def _failure(self, slug: str, detail: str, **extra: Any) -> dict[str, Any]:
         return {

@@ -165,6 +165,10 @@ ExportFormat = Literal["ply", "spz", "splat", "glb"]
 """Export formats (``dcseg.export.FORMATS``)."""
 
 
+ExportColour = Literal["instance", "class"]
+"""Palette colours of an export: by object or by class (``dcseg.export.ExportOptions``)."""
+
+
 class ExportLinks(BaseModel):
     self: str
 
@@ -175,6 +179,8 @@ class ExportPublic(BaseModel):
     format: str
     instance: int | None
     """The object exported alone; None = the whole scene."""
+    options: dict[str, str | int]
+    """The export options asked for (``colour``, ``sh_degree``); empty = the defaults."""
     status: Literal["succeeded", "running"]
     """``running``: the export is being made (202); ask again after ``Retry-After``."""
     files: list[ArtifactPublic]

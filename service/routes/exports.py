@@ -7,8 +7,9 @@ import asyncio
 from dataclasses import dataclass
 from pathlib import Path as FilePath
 from typing import Annotated, Any
+from urllib.parse import urlencode
 
-from fastapi import APIRouter, Depends, Path, Request, Response
+from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, StreamingResponse
 
@@ -17,7 +18,7 @@ from service.deps import AppState, StateDep, TenantDep
 from service.problems import ApiProblem, problem_responses
 from service.routes.artifacts import IfNoneMatch, IfRange, RangeHeader, send_file, send_headers
 from service.routes.instances import InstanceId, instance_url
-from service.schemas import ArtifactPublic, ExportFormat, ExportLinks, ExportPublic
+from service.schemas import ArtifactPublic, ExportColour, ExportFormat, ExportLinks, ExportPublic
 
 router = APIRouter(prefix="/v1/jobs", tags=["exports"])
 
@@ -32,10 +33,36 @@ def get_exporter(request: Request) -> exports.Exporter:
 ExporterDep = Annotated[exports.Exporter, Depends(get_exporter)]
 
 
-def export_url(job_id: str, selection: exports.Selection) -> str:
+def export_options(
+    colour: Annotated[
+        ExportColour | None,
+        Query(description="palette colours by object or by class; default: as reconstructed"),
+    ] = None,
+    sh_degree: Annotated[
+        int | None,
+        Query(ge=0, le=3, description="write this SH degree (3 pads for strict loaders)"),
+    ] = None,
+) -> tuple[tuple[str, str | int], ...]:
+    """The export options of the query (each one makes its own cached export)."""
+    given: dict[str, str | int | None] = {"colour": colour, "sh_degree": sh_degree}
+    return tuple(sorted((k, v) for k, v in given.items() if v is not None))
+
+
+OptionsDep = Annotated[tuple[tuple[str, str | int], ...], Depends(export_options)]
+
+
+def _path(job_id: str, selection: exports.Selection) -> str:
     if selection.instance is None:
         return f"/v1/jobs/{job_id}/exports/{selection.fmt}"
     return f"{instance_url(job_id, selection.instance)}/exports/{selection.fmt}"
+
+
+def _query(selection: exports.Selection) -> str:
+    return "?" + urlencode(selection.options) if selection.options else ""
+
+
+def export_url(job_id: str, selection: exports.Selection) -> str:
+    return _path(job_id, selection) + _query(selection)
 
 
 @dataclass(frozen=True)
@@ -58,23 +85,24 @@ def _target(state: AppState, tenant: str, job_id: str, selection: exports.Select
 
 
 def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
-    url = export_url(target.job_id, target.selection)
+    path, query = _path(target.job_id, target.selection), _query(target.selection)
     files = [
         ArtifactPublic(
             name=f.name,
             media_type=_artifact(f).media_type,
             size=f.size,
             sha256=f.sha256,
-            url=f"{url}/{f.name}",
+            url=f"{path}/{f.name}{query}",
         )
         for f in (done.files if done else [])
     ]
     body = ExportPublic(
         format=target.selection.fmt,
         instance=target.selection.instance,
+        options=dict(target.selection.options),
         status="succeeded" if done else "running",
         files=files,
-        links=ExportLinks(self=url),
+        links=ExportLinks(self=path + query),
     )
     return body.model_dump(mode="json")
 
@@ -123,12 +151,17 @@ EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
 
 @router.get("/{job_id}/exports/{format}", response_model=ExportPublic, responses=EXPORT_RESPONSES)
 async def scene_export(
-    job_id: str, fmt: Format, state: StateDep, tenant: TenantDep, exporter: ExporterDep
+    job_id: str,
+    fmt: Format,
+    options: OptionsDep,
+    state: StateDep,
+    tenant: TenantDep,
+    exporter: ExporterDep,
 ) -> Response:
     """The whole scene in one format: made on the first request and cached. 202 with
     ``Retry-After`` while it is being made; 422 when the job cannot be exported so (or the
     export passed a limit), with the reason."""
-    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt))
+    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt, None, options))
 
 
 @router.get(
@@ -140,12 +173,13 @@ async def instance_export(
     job_id: str,
     k: InstanceId,
     fmt: Format,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     exporter: ExporterDep,
 ) -> Response:
     """One object alone in one format (made on demand and cached, as the scene's)."""
-    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt, k))
+    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt, k, options))
 
 
 def _file(
@@ -182,6 +216,7 @@ def download_scene_export(
     job_id: str,
     fmt: Format,
     name: str,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     range_header: RangeHeader = None,
@@ -189,7 +224,7 @@ def download_scene_export(
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """Download one file of a made scene export (ETag, ``Range``, as artifacts)."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt), name)
+    found = _file(state, tenant, job_id, exports.Selection(fmt, None, options), name)
     return send_file(found, range_header, if_range, if_none_match)
 
 
@@ -198,12 +233,13 @@ def scene_export_headers(
     job_id: str,
     fmt: Format,
     name: str,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """The headers of a whole download of a scene export's file, no body."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt), name)
+    found = _file(state, tenant, job_id, exports.Selection(fmt, None, options), name)
     return send_headers(found, if_none_match)
 
 
@@ -213,6 +249,7 @@ def download_instance_export(
     k: InstanceId,
     fmt: Format,
     name: str,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     range_header: RangeHeader = None,
@@ -220,7 +257,7 @@ def download_instance_export(
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """Download one file of a made instance export (ETag, ``Range``, as artifacts)."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt, k), name)
+    found = _file(state, tenant, job_id, exports.Selection(fmt, k, options), name)
     return send_file(found, range_header, if_range, if_none_match)
 
 
@@ -230,10 +267,11 @@ def instance_export_headers(
     k: InstanceId,
     fmt: Format,
     name: str,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """The headers of a whole download of an instance export's file, no body."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt, k), name)
+    found = _file(state, tenant, job_id, exports.Selection(fmt, k, options), name)
     return send_headers(found, if_none_match)

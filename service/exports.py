@@ -17,6 +17,7 @@ Layout inside ``jobs/<job_id>/``::
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -26,12 +27,13 @@ import shutil
 import threading
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, get_args
 
+from service.blobstore import Storage, StoredFile
 from service.export_child import RUN, run_exporter
 from service.schemas import ExportFormat
 from service.settings import Settings
@@ -45,9 +47,60 @@ EXPORTER = "dcseg.export:export_run"
 """``module:function`` the child process calls: ``(run, out, fmt, *, instances) -> paths``."""
 
 
-def run_folder(paths: JobPaths) -> Path:
-    """The finished run an export reads: the job's segment stage folder."""
-    return paths.output / RUN
+RunGetter = Callable[[], Path]
+"""Gives the local folder of the finished run an export reads (called on an export thread)."""
+
+
+def cache_root(settings: Settings, job_id: str) -> Path:
+    """Where a job's exports are cached: ``jobs/<id>/exports/`` of the API's storage folder."""
+    return JobPaths(settings.storage_dir, job_id).folder / "exports"
+
+
+def remove_cached(settings: Settings, job_id: str) -> None:
+    """Delete a job's cached exports (with object storage they live on the API's disk)."""
+    shutil.rmtree(cache_root(settings, job_id), ignore_errors=True)
+
+
+def run_getter(storage: Storage, tenant: str, job_id: str, settings: Settings) -> RunGetter:
+    """The job's segment stage folder: read in place from local storage; fetched once from
+    object storage into ``exports/run/`` of the cache (SHA-256 checked)."""
+    if storage.backend == "local":
+        folder = JobPaths(settings.storage_dir, job_id).output / RUN
+        return lambda: folder
+    dest = cache_root(settings, job_id) / "run"
+    return functools.partial(fetch_run, storage, tenant, job_id, dest)
+
+
+def fetch_run(storage: Storage, tenant: str, job_id: str, dest: Path) -> Path:
+    """Copy the files of the job's segment stage into ``dest`` (once; renamed into place)."""
+    if dest.is_dir():
+        return dest
+    tmp = dest.with_name(f".tmp-run-{uuid.uuid4().hex[:8]}")
+    try:
+        for item in storage.files(tenant, job_id):
+            if item.name.startswith(RUN + "/"):
+                _fetch_file(storage, tenant, item, tmp / item.name.removeprefix(RUN + "/"))
+        tmp.mkdir(parents=True, exist_ok=True)
+        os.rename(tmp, dest)
+    except OSError:
+        if not dest.is_dir():  # else another thread fetched it first
+            raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return dest
+
+
+def _fetch_file(storage: Storage, tenant: str, item: StoredFile, target: Path) -> None:
+    if ".." in Path(item.name).parts:
+        raise OSError(f"unsafe stored name {item.name!r}")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    digest = hashlib.sha256()
+    with target.open("wb") as out:
+        for chunk in storage.read(tenant, item, 0, item.size - 1) if item.size else ():
+            digest.update(chunk)
+            out.write(chunk)
+    if digest.hexdigest() != item.sha256:
+        raise OSError(f"{item.name}: SHA-256 mismatch while fetching it from storage")
 
 
 @dataclass(frozen=True)
@@ -68,8 +121,9 @@ class Selection:
         """The cache folder of the format and options: ``ply``, ``ply.colour-class.sh_degree-3``."""
         return self.fmt + "".join(f".{name}-{value}" for name, value in self.options)
 
-    def folder(self, job_folder: Path) -> Path:
-        return job_folder / "exports" / self.folder_name / self.variant
+    def folder(self, root: Path) -> Path:
+        """The cache folder of this export under a job's :func:`cache_root`."""
+        return root / self.folder_name / self.variant
 
 
 @dataclass(frozen=True)
@@ -146,7 +200,7 @@ class Exporter:
         self._lock = threading.Lock()
         self._closed = False
 
-    def start(self, run: Path, folder: Path, selection: Selection) -> Future[None]:
+    def start(self, run: RunGetter, folder: Path, selection: Selection) -> Future[None]:
         """The (new or running) making of the export into ``folder``."""
         with self._lock:
             running = self._making.get(folder)
@@ -170,9 +224,10 @@ class Exporter:
             child.kill()
         self._pool.shutdown(wait=False, cancel_futures=True)
 
-    def _make(self, run: Path, folder: Path, selection: Selection) -> None:
+    def _make(self, get_run: RunGetter, folder: Path, selection: Selection) -> None:
         if read_cached(folder, self.settings) is not None:
             return  # made by another replica (or thread) meanwhile
+        run = get_run()
         tmp = folder.with_name(f".tmp-{folder.name}-{uuid.uuid4().hex[:8]}")
         (tmp / "files").mkdir(parents=True)
         try:
@@ -191,7 +246,6 @@ class Exporter:
         """Run the exporter in a child; the manifest or error record of its outcome."""
         out = tmp / "files"
         instances = None if selection.instance is None else [selection.instance]
-        options = dict(selection.options)
         context = multiprocessing.get_context("spawn")
         child = context.Process(
             target=run_exporter,

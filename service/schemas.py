@@ -110,6 +110,11 @@ class ArtifactPublic(BaseModel):
     size: int
     sha256: str
     url: str
+    """The download through the API (``Range``, ``ETag``; needs the API key)."""
+    download_url: str | None = None
+    """Object storage only: a presigned URL that downloads the file straight from the store,
+    without the API key, until ``download_url_expires_at``; None with local storage."""
+    download_url_expires_at: datetime | None = None
 
 
 class ArtifactsPublic(BaseModel):

@@ -14,9 +14,17 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, StreamingResponse
 
 from service import artifacts, exports, instances
+from service.blobstore import StoredFile, read_local
 from service.deps import AppState, StateDep, TenantDep
 from service.problems import ApiProblem, problem_responses
-from service.routes.artifacts import IfNoneMatch, IfRange, RangeHeader, send_file, send_headers
+from service.routes.artifacts import (
+    IfNoneMatch,
+    IfRange,
+    RangeHeader,
+    Reader,
+    send_file,
+    send_headers,
+)
 from service.routes.instances import InstanceId, instance_url
 from service.schemas import ArtifactPublic, ExportColour, ExportFormat, ExportLinks, ExportPublic
 
@@ -70,18 +78,21 @@ class Target:
     """A checked export request: the run to read and the cache folder."""
 
     job_id: str
-    run: FilePath
+    run: exports.RunGetter
     folder: FilePath
     selection: exports.Selection
 
 
 def _target(state: AppState, tenant: str, job_id: str, selection: exports.Selection) -> Target:
     """404 for an unknown job or instance, 409 for an unfinished job."""
-    paths = instances.finished_job(state.settings, state.store.get_job(job_id, tenant), job_id)
-    records = instances.read_instances(paths).get("instances", [])
+    job = state.store.get_job(job_id, tenant)
+    files = instances.finished_job(state.storage, tenant, job, job_id)
+    records = instances.read_instances(files).get("instances", [])
     if selection.instance is not None:
         instances.find_instance(records, job_id, selection.instance)
-    return Target(job_id, exports.run_folder(paths), selection.folder(paths.folder), selection)
+    run = exports.run_getter(state.storage, tenant, job_id, state.settings)
+    folder = selection.folder(exports.cache_root(state.settings, job_id))
+    return Target(job_id, run, folder, selection)
 
 
 def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
@@ -107,8 +118,15 @@ def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
     return body.model_dump(mode="json")
 
 
+def _reader(found: artifacts.Artifact) -> Reader:
+    """Exports are cached on the API's disk whatever the storage backend."""
+    path = found.item.path
+    assert path is not None
+    return lambda start, end: read_local(path, start, end)
+
+
 def _artifact(item: exports.ExportFile) -> artifacts.Artifact:
-    return artifacts.Artifact(item.name, item.path, item.size, item.sha256)
+    return artifacts.Artifact(StoredFile(item.name, item.size, item.sha256, path=item.path))
 
 
 def _failure(target: Target, failed: exports.Failed) -> ApiProblem:
@@ -225,7 +243,7 @@ def download_scene_export(
 ) -> Response:
     """Download one file of a made scene export (ETag, ``Range``, as artifacts)."""
     found = _file(state, tenant, job_id, exports.Selection(fmt, None, options), name)
-    return send_file(found, range_header, if_range, if_none_match)
+    return send_file(found, _reader(found), range_header, if_range, if_none_match)
 
 
 @router.head(SCENE_FILE, response_class=Response, responses=HEAD_RESPONSES)
@@ -258,7 +276,7 @@ def download_instance_export(
 ) -> Response:
     """Download one file of a made instance export (ETag, ``Range``, as artifacts)."""
     found = _file(state, tenant, job_id, exports.Selection(fmt, k, options), name)
-    return send_file(found, range_header, if_range, if_none_match)
+    return send_file(found, _reader(found), range_header, if_range, if_none_match)
 
 
 @router.head(INSTANCE_FILE, response_class=Response, responses=HEAD_RESPONSES)

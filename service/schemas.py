@@ -166,8 +166,8 @@ class InstancesPublic(BaseModel):
     """SHA-256 of the ``scene_labelled.ply`` whose ``instance_id`` column the ids index."""
 
 
-ExportFormat = Literal["ply", "spz", "splat", "glb"]
-"""Export formats (``dcseg.export.FORMATS``)."""
+ExportFormat = Literal["ply", "spz", "splat", "glb", "obj"]
+"""Export formats: those of ``dcseg.export.FORMATS`` (a test keeps them equal)."""
 
 
 ExportColour = Literal["instance", "class"]

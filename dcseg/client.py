@@ -162,42 +162,6 @@ class Client:
         ]
         return items
 
-    def _fetch(self, url: str, partial: Path) -> str:
-        """Download ``url`` through the API into ``partial``; its SHA-256."""
-        digest = hashlib.sha256()
-        with self._http.stream("GET", url, timeout=None) as response:
-            if response.status_code >= 400:
-                response.read()
-                self._json(response)
-            with partial.open("wb") as out:
-                for chunk in response.iter_bytes():
-                    digest.update(chunk)
-                    out.write(chunk)
-        return digest.hexdigest()
-
-    def _fetch_presigned(self, item: dict[str, Any], partial: Path) -> str | None:
-        """Download the artifact's presigned ``download_url`` straight from the object store
-        (no API key is sent there); None when it has none or it fails (expired, unreachable,
-        corrupted): the caller then downloads through the API."""
-        url = item.get("download_url")
-        if not url:
-            return None
-        digest = hashlib.sha256()
-        try:
-            with (
-                httpx.stream("GET", url, timeout=self._http.timeout) as response,
-                partial.open("wb") as out,
-            ):
-                if response.status_code != 200:
-                    return None
-                for chunk in response.iter_bytes():
-                    digest.update(chunk)
-                    out.write(chunk)
-        except httpx.HTTPError:
-            return None
-        found = digest.hexdigest()
-        return found if found == item["sha256"] else None
-
     def download(self, job_id: str, dest: Path, *, only: Sequence[str] | None = None) -> list[Path]:
         """Download the job's artifacts into ``dest`` (sub-folders per stage), checking SHA-256.
 
@@ -278,24 +242,58 @@ class Client:
         return self._fetch_all(select(files, only), dest)
 
     def _fetch_all(self, items: Sequence[dict[str, Any]], dest: Path) -> list[Path]:
-        return [self._fetch_item(item, dest) for item in items]
+        return [self._fetch(item, dest) for item in items]
 
-    def _fetch_item(self, item: dict[str, Any], dest: Path) -> Path:
-        """One listed file (``{name, url, sha256[, download_url]}``) to ``dest/<name>``, checking
-        SHA-256: from its presigned ``download_url`` when the server offers one, else (or when
-        that fails) through the API; written through a ``.part`` file."""
+    def _fetch(self, item: dict[str, Any], dest: Path) -> Path:
+        """Stream one listed file (``{name, url, sha256}``) to ``dest/<name>`` via a ``.part``."""
         relative = PurePosixPath(item["name"])
         if relative.is_absolute() or ".." in relative.parts:
             raise ApiError(500, {"detail": f"unsafe file name {item['name']!r}"})
         target = dest.joinpath(*relative.parts)
         target.parent.mkdir(parents=True, exist_ok=True)
         partial = target.with_name(target.name + ".part")
-        digest = self._fetch_presigned(item, partial) or self._fetch(item["url"], partial)
+        digest = self._fetch_presigned(item, partial) or self._stream(item["url"], partial)
         if digest != item["sha256"]:
             partial.unlink()
             raise ApiError(500, {"detail": f"{item['name']}: SHA-256 mismatch"})
         partial.replace(target)
         return target
+
+    def _stream(self, url: str, partial: Path) -> str:
+        """Download ``url`` through the API into ``partial``; its SHA-256."""
+        digest = hashlib.sha256()
+        with self._http.stream("GET", url, timeout=None) as response:
+            if response.status_code >= 400:
+                response.read()
+                self._json(response)
+            with partial.open("wb") as out:
+                for chunk in response.iter_bytes():
+                    digest.update(chunk)
+                    out.write(chunk)
+        return digest.hexdigest()
+
+    def _fetch_presigned(self, item: dict[str, Any], partial: Path) -> str | None:
+        """Download the artifact's presigned ``download_url`` straight from the object store
+        (no API key is sent there); None when it has none or it fails (expired, unreachable,
+        corrupted): the caller then downloads through the API."""
+        url = item.get("download_url")
+        if not url:
+            return None
+        digest = hashlib.sha256()
+        try:
+            with (
+                httpx.stream("GET", url, timeout=self._http.timeout) as response,
+                partial.open("wb") as out,
+            ):
+                if response.status_code != 200:
+                    return None
+                for chunk in response.iter_bytes():
+                    digest.update(chunk)
+                    out.write(chunk)
+        except httpx.HTTPError:
+            return None
+        found = digest.hexdigest()
+        return found if found == item["sha256"] else None
 
 
 def matches(name: str, entry: str) -> bool:

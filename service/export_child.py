@@ -34,6 +34,7 @@ def run_exporter(
         paths = export_run(
             Path(run), Path(out), fmt, instances=instances, options=_options(options)
         )
+        _scrub_sidecars(paths, run)
         result = {"files": [str(Path(p)) for p in paths]}
     except InputError as error:
         problems = [{"path": p.path, "reason": p.reason} for p in error.problems]
@@ -43,6 +44,15 @@ def run_exporter(
         logging.getLogger(__name__).exception("export %s failed (error id %s)", fmt, error_id)
         result = {"type": "export-error", "error_id": error_id}
     Path(out).with_name("result.json").write_text(json.dumps(result), encoding="utf-8")
+
+
+def _scrub_sidecars(paths: list[Path], run: str) -> None:
+    """JSON sidecars name the run folder: give clients ``segment``, never a storage path."""
+    for path in map(Path, paths):
+        if path.suffix == ".json":
+            text = path.read_text(encoding="utf-8")
+            if run in text:
+                path.write_text(text.replace(json.dumps(run)[1:-1], RUN), encoding="utf-8")
 
 
 def _scrubbed(problems: list[dict[str, str]], run: str, out: str) -> list[dict[str, str]]:

@@ -144,7 +144,7 @@ class Done:
 class Failed:
     slug: str
     """``export-failed`` (the run cannot be exported so), ``export-too-large``,
-    ``export-timed-out`` or ``export-error`` (an internal error, with ``error_id``)."""
+    ``export-timed-out`` or ``export-error`` (an internal error; never cached)."""
     detail: str
     errors: list[dict[str, str]]
 
@@ -195,12 +195,12 @@ class Exporter:
         self.settings = settings
         self.target = target
         self._pool = ThreadPoolExecutor(settings.max_concurrent_exports, "export")
-        self._making: dict[Path, Future[None]] = {}
+        self._making: dict[Path, Future[Failed | None]] = {}
         self._children: set[Any] = set()
         self._lock = threading.Lock()
         self._closed = False
 
-    def start(self, run: RunGetter, folder: Path, selection: Selection) -> Future[None]:
+    def start(self, run: RunGetter, folder: Path, selection: Selection) -> Future[Failed | None]:
         """The (new or running) making of the export into ``folder``."""
         with self._lock:
             running = self._making.get(folder)
@@ -224,9 +224,11 @@ class Exporter:
             child.kill()
         self._pool.shutdown(wait=False, cancel_futures=True)
 
-    def _make(self, get_run: RunGetter, folder: Path, selection: Selection) -> None:
+    def _make(self, get_run: RunGetter, folder: Path, selection: Selection) -> Failed | None:
+        """Make the export and cache its outcome; an internal error (a crash, a shutdown) is
+        not cached but returned, so the next request tries again."""
         if read_cached(folder, self.settings) is not None:
-            return  # made by another replica (or thread) meanwhile
+            return None  # made by another replica (or thread) meanwhile
         run = get_run()
         tmp = folder.with_name(f".tmp-{folder.name}-{uuid.uuid4().hex[:8]}")
         (tmp / "files").mkdir(parents=True)
@@ -234,6 +236,8 @@ class Exporter:
             started = time.monotonic()
             record = self._run_child(run, tmp, selection)
             record["seconds"] = round(time.monotonic() - started, 3)
+            if record.get("type") == "export-error":
+                return Failed("export-error", str(record["detail"]), [])
             name = "manifest.json" if "files" in record else "error.json"
             if name == "error.json":  # a failure keeps no files
                 shutil.rmtree(tmp / "files", ignore_errors=True)
@@ -241,6 +245,7 @@ class Exporter:
             _publish(tmp, folder)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+        return None
 
     def _run_child(self, run: Path, tmp: Path, selection: Selection) -> dict[str, Any]:
         """Run the exporter in a child; the manifest or error record of its outcome."""

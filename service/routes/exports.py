@@ -146,7 +146,7 @@ async def _serve(
         making = exporter.start(target.run, target.folder, sel)
         waited = asyncio.wrap_future(making)
         try:
-            await asyncio.wait_for(asyncio.shield(waited), state.settings.export_wait_s)
+            uncached = await asyncio.wait_for(asyncio.shield(waited), state.settings.export_wait_s)
         except TimeoutError:
             headers = {
                 "Retry-After": str(state.settings.retry_after_s),
@@ -154,6 +154,7 @@ async def _serve(
             }
             return JSONResponse(_public(target, None), status_code=202, headers=headers)
         cached = await run_in_threadpool(exports.read_cached, target.folder, state.settings)
+        cached = cached or uncached
     if isinstance(cached, exports.Failed):
         raise _failure(target, cached)
     if cached is None:

@@ -25,6 +25,7 @@ from tests.service.conftest import (
     assert_problem,
     make_settings,
     state_of,
+    wait_for,
 )
 from tests.service.segmented import OBJECTS, run_segmented_job, segment_files
 
@@ -218,12 +219,16 @@ def test_an_export_the_run_cannot_make_names_the_problem_without_storage_paths(
 
 
 @pytest.mark.parametrize("mode", ["crash", "raise"])
-def test_a_crashing_exporter_is_a_500_with_an_error_id(env, monkeypatch, tmp_path, mode):
+def test_a_crashing_exporter_is_a_500_with_an_error_id(env, monkeypatch, tmp_path, log, mode):
     client, job = env
     monkeypatch.setenv("FAKE_EXPORT_MODE", mode)
     body = assert_problem(client.get(f"/v1/jobs/{job}/exports/splat", headers=AUTH_A), 500)
     assert body["type"].endswith("export-error") and "internal error" in body["detail"]
     assert str(tmp_path) not in json.dumps(body) and "boom" not in json.dumps(body)
+    # not cached: the next request tries again, and succeeds once the exporter does
+    monkeypatch.setenv("FAKE_EXPORT_MODE", "")
+    assert client.get(f"/v1/jobs/{job}/exports/splat", headers=AUTH_A).status_code == 200
+    assert _calls(log) == 2
 
 
 def test_deleting_the_job_removes_its_exports(env, tmp_path):
@@ -288,3 +293,20 @@ def test_a_corrupt_stored_file_is_not_exported(env, tmp_path):
         fetch_run(state.storage, "tenant-a", job, tmp_path / "run")
     assert not (tmp_path / "run").exists()
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".tmp-run")] == []
+
+
+def test_shutdown_kills_a_running_export(tmp_path, scene_tar, monkeypatch):
+    monkeypatch.setenv("FAKE_EXPORT_MODE", "sleep")
+    monkeypatch.setenv("FAKE_EXPORT_SLEEP_S", "60")
+    with _client(tmp_path, export_wait_s=0.5) as client:
+        job = _job(client, scene_tar)
+        assert client.get(f"/v1/jobs/{job}/exports/glb", headers=AUTH_A).status_code == 202
+        exporter = client.app.state.exporter  # type: ignore[attr-defined]
+        children = list(exporter._children)
+        assert len(children) == 1 and children[0].is_alive()
+    started = time.monotonic()
+    children[0].join(10)
+    assert not children[0].is_alive() and time.monotonic() - started < 10
+    folder = tmp_path / "data" / "jobs" / job / "exports" / "scene" / "glb"
+    wait_for(lambda: not any(folder.parent.glob(".tmp-*")), timeout=10)
+    assert not folder.exists()  # neither a half-made export nor a failure is kept

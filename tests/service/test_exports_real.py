@@ -4,6 +4,7 @@ options reach the exporter, a GLB holds one node per object; all through the HTT
 
 from __future__ import annotations
 
+import hashlib
 import io
 from collections.abc import Iterator
 from pathlib import Path
@@ -57,6 +58,19 @@ def test_ply_export_partitions_the_labelled_gaussians(env, run_files):
         assert len(_vertices(data)) == int(np.sum(ids == k))
     record = client.get(f"/v1/jobs/{job}/instances/1", headers=AUTH_A).json()
     assert record["label"] == "box"
+
+
+def test_sidecars_name_no_storage_path(env, tmp_path):
+    client, job = env
+    body = _get(client, f"/v1/jobs/{job}/exports/spz")
+    sidecars = [f for f in body["files"] if f["name"].endswith(".json")]
+    assert {"instances.spz.json", "frame.json"} <= {f["name"] for f in sidecars}
+    for item in sidecars:
+        data = client.get(item["url"], headers=AUTH_A)
+        assert hashlib.sha256(data.content).hexdigest() == item["sha256"]
+        assert str(tmp_path) not in data.text, item["name"]
+    table = client.get(next(f["url"] for f in sidecars if f["name"] == "instances.spz.json"))
+    assert table.status_code == 401  # downloads need the key like every route
 
 
 def test_options_reach_the_exporter_and_are_cached_apart(env):

@@ -1,11 +1,16 @@
-"""The entry point of an export's child process (kept light: it imports the exporter and
-little else, so a spawned child starts quickly)."""
+"""The export child process: ``python -m service.export_child '<job JSON>'`` (kept light: it
+imports the exporter and little else, so it starts quickly).
+
+The job is ``{target, run, out, fmt, instances, options}``; the outcome is written to
+``result.json`` beside ``out``: ``{"files": [...]}`` or ``{"type": ..., ...}``.
+"""
 
 from __future__ import annotations
 
 import importlib
 import json
 import logging
+import sys
 import uuid
 from pathlib import Path
 from typing import Any
@@ -68,3 +73,16 @@ def _options(values: dict[str, Any]) -> Any:
     if not values:
         return None
     return importlib.import_module("dcseg.export").ExportOptions(**values)
+
+
+def main(argv: list[str]) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    job = json.loads(argv[0])
+    run_exporter(
+        job["target"], job["run"], job["out"], job["fmt"], job["instances"], job["options"]
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,9 +1,10 @@
 """Exports of a finished job (``dcseg.export``), made on demand and cached in the job's folder.
 
-An export is made once per (selection, format): the whole scene or one instance. The first
-request starts it on a thread of :class:`Exporter`, which runs ``export_run`` in a child
-process of its own (spawned: the API process never imports the exporters' dependencies, an
-export cannot block the event loop, and one past ``DCSEG_EXPORT_TIME_LIMIT_S`` is killed).
+An export is made once per (selection, format, options): the whole scene or one instance. The
+first request starts it on a thread of :class:`Exporter`, which runs ``export_run`` in a child
+process of its own (``python -m service.export_child``: the API process never imports the
+exporters' dependencies, an export cannot block the event loop, and one past
+``DCSEG_EXPORT_TIME_LIMIT_S`` is killed).
 The child writes into a temporary folder; its files are hashed, checked against
 ``DCSEG_MAX_EXPORT_BYTES`` and renamed into place with a manifest, so a reader sees a whole
 export or none. A failure is cached the same way (``error.json``) for the limits it met.
@@ -21,9 +22,10 @@ import functools
 import hashlib
 import json
 import logging
-import multiprocessing
 import os
 import shutil
+import subprocess
+import sys
 import threading
 import time
 import uuid
@@ -34,7 +36,7 @@ from pathlib import Path
 from typing import Any, get_args
 
 from service.blobstore import Storage, StoredFile
-from service.export_child import RUN, run_exporter
+from service.export_child import RUN
 from service.schemas import ExportFormat
 from service.settings import Settings
 from worker.contract import JobPaths
@@ -196,7 +198,7 @@ class Exporter:
         self.target = target
         self._pool = ThreadPoolExecutor(settings.max_concurrent_exports, "export")
         self._making: dict[Path, Future[Failed | None]] = {}
-        self._children: set[Any] = set()
+        self._children: set[subprocess.Popen[bytes]] = set()
         self._lock = threading.Lock()
         self._closed = False
 
@@ -250,37 +252,31 @@ class Exporter:
     def _run_child(self, run: Path, tmp: Path, selection: Selection) -> dict[str, Any]:
         """Run the exporter in a child; the manifest or error record of its outcome."""
         out = tmp / "files"
-        instances = None if selection.instance is None else [selection.instance]
-        context = multiprocessing.get_context("spawn")
-        child = context.Process(
-            target=run_exporter,
-            args=(
-                self.target,
-                str(run),
-                str(out),
-                selection.fmt,
-                instances,
-                dict(selection.options),
-            ),
-            name=f"export-{selection.fmt}",
-            daemon=True,
-        )
+        job = {
+            "target": self.target,
+            "run": str(run),
+            "out": str(out),
+            "fmt": selection.fmt,
+            "instances": None if selection.instance is None else [selection.instance],
+            "options": dict(selection.options),
+        }
+        command = [sys.executable, "-m", "service.export_child", json.dumps(job)]
         with self._lock:
             if self._closed:
                 return self._failure("export-error", "the server is shutting down")
-            child.start()
+            child = subprocess.Popen(command, stdin=subprocess.DEVNULL)
             self._children.add(child)
         try:
-            child.join(self.settings.export_time_limit_s)
-            if child.is_alive():
-                child.kill()
-                child.join()
-                limit = self.settings.export_time_limit_s
-                return self._failure(
-                    "export-timed-out",
-                    f"the {selection.fmt} export took longer than {limit:g} s"
-                    " (DCSEG_EXPORT_TIME_LIMIT_S)",
-                )
+            child.wait(self.settings.export_time_limit_s)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+            limit = self.settings.export_time_limit_s
+            return self._failure(
+                "export-timed-out",
+                f"the {selection.fmt} export took longer than {limit:g} s"
+                " (DCSEG_EXPORT_TIME_LIMIT_S)",
+            )
         finally:
             with self._lock:
                 self._children.discard(child)

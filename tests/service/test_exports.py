@@ -303,10 +303,10 @@ def test_shutdown_kills_a_running_export(tmp_path, scene_tar, monkeypatch):
         assert client.get(f"/v1/jobs/{job}/exports/glb", headers=AUTH_A).status_code == 202
         exporter = client.app.state.exporter  # type: ignore[attr-defined]
         children = list(exporter._children)
-        assert len(children) == 1 and children[0].is_alive()
+        assert len(children) == 1 and children[0].poll() is None
     started = time.monotonic()
-    children[0].join(10)
-    assert not children[0].is_alive() and time.monotonic() - started < 10
+    children[0].wait(10)
+    assert children[0].returncode is not None and time.monotonic() - started < 10
     folder = tmp_path / "data" / "jobs" / job / "exports" / "scene" / "glb"
     wait_for(lambda: not any(folder.parent.glob(".tmp-*")), timeout=10)
     assert not folder.exists()  # neither a half-made export nor a failure is kept

@@ -264,7 +264,7 @@ class Exporter:
         with self._lock:
             if self._closed:
                 return self._failure("export-error", "the server is shutting down")
-            child = subprocess.Popen(command, stdin=subprocess.DEVNULL)
+            child = subprocess.Popen(command, stdin=subprocess.DEVNULL, env=_child_env())
             self._children.add(child)
         try:
             child.wait(self.settings.export_time_limit_s)
@@ -339,6 +339,12 @@ class Exporter:
             "limits": limits_of(self.settings),
             **extra,
         }
+
+
+def _child_env() -> dict[str, str]:
+    """The environment of an export child: this one, with this process's import path (as
+    multiprocessing gives a spawned child), so it imports the same ``service`` and ``dcseg``."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
 
 
 def _publish(tmp: Path, folder: Path) -> None:

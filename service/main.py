@@ -23,7 +23,7 @@ from dcseg import __version__
 from service import problems
 from service.deps import LOCAL_TENANT, AppState, make_limiter
 from service.queue import JobQueue, make_queue
-from service.routes import artifacts, events, health, jobs, uploads
+from service.routes import artifacts, events, health, jobs, uploads, viewer
 from service.settings import Settings, get_settings
 from service.store import Store
 from service.uploads import remove_expired_uploads
@@ -215,7 +215,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     problems.install(app)
-    for module in (uploads, jobs, events, artifacts, health):
+    for module in (uploads, jobs, events, artifacts, health, viewer):
         app.include_router(module.router)
     return app
 

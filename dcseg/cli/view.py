@@ -17,7 +17,9 @@ def register(subparsers: Any) -> None:
         "instances.json, labels.json) on 127.0.0.1 until interrupted: objects coloured by "
         "instance or class, click to select, hide/show, download one object as PLY.",
     )
-    parser.add_argument("run", type=Path, help="run folder (the --out of dcseg run or demo)")
+    parser.add_argument(
+        "run_dir", metavar="RUN", type=Path, help="run folder (the --out of dcseg run or demo)"
+    )
     parser.add_argument("--port", type=_port, default=8765, help="port (8765; 0 = any free)")
     parser.add_argument("--open", action="store_true", help="open the page in a web browser")
     parser.set_defaults(run=run)
@@ -39,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from dcseg.viewer.server import make_server, url_of
 
     try:
-        server = make_server(args.run, args.port)
+        server = make_server(args.run_dir, args.port)
     except (InputError, ViewerNotBuilt) as error:
         sys.stderr.write(f"dcseg view: {error}\n")
         return 1
@@ -47,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"dcseg view: cannot listen on port {args.port}: {error.strerror}\n")
         return 1
     url = url_of(server)
-    sys.stdout.write(f"serving {args.run} at {url} (Ctrl-C to stop)\n")
+    sys.stdout.write(f"serving {args.run_dir} at {url} (Ctrl-C to stop)\n")
     sys.stdout.flush()
     if args.open:
         webbrowser.open(url)

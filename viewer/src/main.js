@@ -7,10 +7,11 @@ import { SparkRenderer } from "@sparkjsdev/spark";
 import { fetchAll } from "./api.js";
 import { frame, makeControls, upVector } from "./camera.js";
 import { subsetPly } from "./ply.js";
-import { applyView, buildSplats, instanceNear, membersOf, readLabelledScene, robustBounds } from "./scene.js";
+import { applyView, buildSplats, instanceAt, membersOf, readLabelledScene, robustBounds } from "./scene.js";
 import { renderClasses, renderObjects, renderSelection, setStatus, showError } from "./ui.js";
 
 const CLICK_SLOP_PX = 4; // a pointer that moved further was a drag of the camera, not a click
+const FRAMES_AFTER_CHANGE = 8; // frames drawn after a change: Spark sorts and uploads over a few
 
 function readConfig() {
   const node = document.getElementById("dcseg-config");
@@ -53,11 +54,18 @@ class Viewer {
     this.camera = new THREE.PerspectiveCamera(50, 1, 0.01, 100);
     this.three = new THREE.Scene();
     this.three.background = new THREE.Color(0x15171a);
-    this.three.add(new SparkRenderer({ renderer: this.renderer }));
+    // Frames are drawn only after a change (camera, view, Spark's sort finishing): an idle
+    // viewer costs nothing, which matters on CPUs rendering WebGL in software.
+    this.pending = FRAMES_AFTER_CHANGE;
+    this.three.add(new SparkRenderer({ renderer: this.renderer, onDirty: () => this.redraw(2) }));
     this.splats = buildSplats(scene);
     this.three.add(this.splats.mesh);
     this.controls = makeControls(this.camera, this.canvas);
     this.frames = 0;
+  }
+
+  redraw(frames = FRAMES_AFTER_CHANGE) {
+    this.pending = Math.max(this.pending, frames);
   }
 
   start() {
@@ -68,6 +76,8 @@ class Viewer {
     this.bindPanel();
     this.refresh();
     this.renderer.setAnimationLoop(() => {
+      if (this.pending <= 0) return;
+      this.pending -= 1;
       this.renderer.render(this.three, this.camera);
       this.frames += 1;
     });
@@ -78,18 +88,21 @@ class Viewer {
     this.renderer.setSize(w, h, false);
     this.camera.aspect = w / Math.max(h, 1);
     this.camera.updateProjectionMatrix();
+    this.redraw();
   }
 
   setUp(name) {
     this.controls.dispose();
     this.camera.up.copy(upVector(name));
     this.controls = makeControls(this.camera, this.canvas);
+    this.controls.addEventListener("change", () => this.redraw());
     frame(this.camera, this.controls, robustBounds(this.scene), upVector(name));
     document.getElementById("up").value = name;
   }
 
   refresh() {
     applyView(this.scene, this.splats, this.view);
+    this.redraw();
     const record = this.view.selected === null ? null : this.records.get(this.view.selected) ?? null;
     renderSelection(document.getElementById("selection"), record, () => this.downloadSelected());
   }
@@ -113,11 +126,9 @@ class Viewer {
   /** The instance under the viewport point (x, y) in CSS pixels, or null. */
   pick(x, y) {
     const rect = this.canvas.getBoundingClientRect();
-    const ndc = new THREE.Vector2(((x - rect.left) / rect.width) * 2 - 1, -((y - rect.top) / rect.height) * 2 + 1);
-    const raycaster = new THREE.Raycaster();
-    raycaster.setFromCamera(ndc, this.camera);
-    const hits = raycaster.intersectObject(this.splats.mesh, false);
-    return hits.length ? instanceNear(this.scene, this.view, hits[0].point) : null;
+    this.camera.updateMatrixWorld();
+    const pixel = { x: x - rect.left, y: y - rect.top, width: rect.width, height: rect.height };
+    return instanceAt(this.scene, this.view, this.camera, pixel);
   }
 
   /** Viewport CSS pixel of world point `xyz` (for tests and overlays). */
@@ -181,4 +192,10 @@ async function main() {
   return viewer;
 }
 
-window.dcsegViewer = { ready: main().catch((error) => { showError(String(error.message ?? error)); throw error; }) };
+// For tests and scripting: `ready` resolves to the Viewer; `loaded` turns true with it.
+const hook = { loaded: false, error: null };
+hook.ready = main().then(
+  (viewer) => { hook.loaded = true; return viewer; },
+  (error) => { hook.error = String(error.message ?? error); showError(hook.error); throw error; },
+);
+window.dcsegViewer = hook;

@@ -89,15 +89,35 @@ export function membersOf(scene, id) {
   return out;
 }
 
-/** The instance id of the visible Gaussian whose centre is nearest to `point`, or null. */
-export function instanceNear(scene, view, point) {
+const PICK_SIGMAS = 2; // a splat covers the pixels within 2 standard deviations of its centre
+const PICK_MIN_PX = 2;
+const PICK_MIN_OPACITY = 0.2;
+
+/**
+ * The instance of the front-most visible Gaussian whose screen footprint covers `pixel`
+ * ({x, y, width, height} in CSS pixels of the canvas), or null (background or no instance).
+ * Spark's ellipsoid raycast leaves gaps between sparse splats; the footprint matches what is
+ * drawn.
+ */
+export function instanceAt(scene, view, camera, pixel) {
+  const e = camera.matrixWorldInverse.elements;
+  const focal = pixel.height / 2 / Math.tan((camera.fov * Math.PI) / 360);
+  const cx = pixel.width / 2;
+  const cy = pixel.height / 2;
   let best = -1;
-  let bestD = Infinity;
+  let bestDepth = Infinity;
   const m = scene.means;
+  const s = scene.scales;
   for (let i = 0; i < scene.n; i++) {
-    if (!isVisible(scene, view, i)) continue;
-    const d = (m[3 * i] - point.x) ** 2 + (m[3 * i + 1] - point.y) ** 2 + (m[3 * i + 2] - point.z) ** 2;
-    if (d < bestD) { bestD = d; best = i; }
+    if (scene.opacity[i] < PICK_MIN_OPACITY || !isVisible(scene, view, i)) continue;
+    const [x, y, z] = [m[3 * i], m[3 * i + 1], m[3 * i + 2]];
+    const depth = -(e[2] * x + e[6] * y + e[10] * z + e[14]); // camera looks down -z
+    if (depth <= camera.near || depth >= bestDepth) continue;
+    const u = cx + (focal * (e[0] * x + e[4] * y + e[8] * z + e[12])) / depth;
+    const v = cy - (focal * (e[1] * x + e[5] * y + e[9] * z + e[13])) / depth;
+    const sigma = Math.max(s[3 * i], s[3 * i + 1], s[3 * i + 2]);
+    const radius = Math.max(PICK_MIN_PX, (PICK_SIGMAS * sigma * focal) / depth);
+    if ((u - pixel.x) ** 2 + (v - pixel.y) ** 2 <= radius * radius) { best = i; bestDepth = depth; }
   }
   return best >= 0 && scene.instanceIds[best] > 0 ? scene.instanceIds[best] : null;
 }

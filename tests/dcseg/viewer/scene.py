@@ -13,7 +13,8 @@ from dcseg.io.exports import instance_records, write_instances_json, write_label
 from dcseg.io.ply import write_gaussians_ply
 from dcseg.types import Vocabulary
 
-VOCABULARY = Vocabulary(("floor", "box", "ball"))
+VOCABULARY = Vocabulary(("wall", "floor", "box", "ball"))
+"""Class ids differ from instance ids, so the two colourings differ; "wall" is absent."""
 
 
 @dataclass(frozen=True)
@@ -28,9 +29,9 @@ class Part:
 
 
 PARTS = (
-    Part(0, (0.0, 0.0, 0.0), (1.0, 1.0, 0.01), (0.55, 0.5, 0.45), 2500),  # instance 1: floor
-    Part(1, (-0.45, 0.1, 0.2), (0.16, 0.16, 0.16), (0.9, 0.2, 0.2), 1500),  # 2: box
-    Part(2, (0.45, -0.1, 0.2), (0.16, 0.16, 0.16), (0.2, 0.3, 0.9), 1500),  # 3: ball
+    Part(1, (0.0, 0.0, 0.0), (1.0, 1.0, 0.01), (0.55, 0.5, 0.45), 2500),  # instance 1: floor
+    Part(2, (-0.45, 0.1, 0.2), (0.16, 0.16, 0.16), (0.9, 0.2, 0.2), 1500),  # 2: box
+    Part(3, (0.45, -0.1, 0.2), (0.16, 0.16, 0.16), (0.2, 0.3, 0.9), 1500),  # 3: ball
 )
 NOISE = 60
 """Gaussians without instance or class, scattered above the floor."""

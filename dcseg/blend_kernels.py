@@ -90,3 +90,20 @@ def add_class_agreement(
             total[g] += w
             if gaussian_class[g] == c:
                 agree[g] += w
+
+
+@numba.njit(cache=True, nogil=True)
+def add_class_evidence(
+    offsets: Array, ids: Array, weights: Array, pixel_class: Array, evidence: Array
+) -> None:
+    """Add one view's blending weight per Gaussian and pixel class into ``evidence`` ``[N, C]``.
+
+    Every contribution of a pixel with a class ``c >= 0`` adds its weight to
+    ``evidence[gaussian, c]``. Serial: one O(nnz) pass, accumulated in float64.
+    """
+    for p in range(offsets.shape[0] - 1):
+        c = pixel_class[p]
+        if c < 0:
+            continue
+        for k in range(offsets[p], offsets[p + 1]):
+            evidence[ids[k], c] += np.float64(weights[k])

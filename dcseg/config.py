@@ -30,6 +30,9 @@ class CaptureOptions:
         depth_trunc: depth beyond this many metres is set to 0 (invalid). None = keep all.
         intrinsics: ``(fx, fy, cx, cy)`` at the native colour resolution, for layouts that do
             not store intrinsics (7-Scenes, Replica without ``cam_params.json``).
+        min_confidence: for layouts that store an ARKit depth confidence per pixel (Record3D,
+            Polycam; levels 0 = low, 1 = medium, 2 = high), depth whose confidence is below this
+            level is set to 0 (invalid). 0 = keep all depth (confidence files are not read).
     """
 
     stride: int = 1
@@ -37,6 +40,7 @@ class CaptureOptions:
     size: tuple[int, int] | None = None
     depth_trunc: float | None = None
     intrinsics: tuple[float, float, float, float] | None = None
+    min_confidence: int = 0
 
     def __post_init__(self) -> None:
         if self.stride < 1:
@@ -47,6 +51,8 @@ class CaptureOptions:
             raise ValueError(f"size must be positive, got {self.size}")
         if self.depth_trunc is not None and self.depth_trunc <= 0:
             raise ValueError(f"depth_trunc must be > 0, got {self.depth_trunc}")
+        if self.min_confidence not in (0, 1, 2):
+            raise ValueError(f"min_confidence must be 0, 1 or 2, got {self.min_confidence}")
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,53 @@ class CacheConfig:
     memory_mb: int = 2048
 
 
+@dataclass(frozen=True)
+class FrameBudget:
+    """The working resolution and the frames a run trains on, chosen from the capture's size.
+
+    :func:`dcseg.io.captures.plan.plan_capture` turns a budget and a capture's listing into a
+    :class:`~dcseg.io.captures.plan.CapturePlan`. Outputs (per-view masks and labels) are still
+    written at the capture's resolution.
+
+    Attributes:
+        max_side: frames are downscaled by the smallest integer factor that brings their
+            longer side to at most this many pixels; None = native resolution.
+        max_frames: at most this many keyframes, evenly spaced over those the pose rule keeps;
+            None = every frame the pose rule keeps.
+        min_translation: a frame is a keyframe when its camera moved at least this many metres
+            since the last keyframe ...
+        min_rotation_deg: ... or turned at least this many degrees. 0 and 0 keep every frame.
+    """
+
+    max_side: int | None = 640
+    max_frames: int | None = 200
+    min_translation: float = 0.01
+    min_rotation_deg: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("max_side", "max_frames"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name} must be >= 1 or None, got {value}")
+        if not self.min_translation >= 0:
+            raise ValueError(f"min_translation must be >= 0, got {self.min_translation}")
+        if not 0 <= self.min_rotation_deg <= 180:
+            raise ValueError(f"min_rotation_deg must be in [0, 180], got {self.min_rotation_deg}")
+
+
+BUDGET_PRESETS: dict[str, FrameBudget] = {
+    "fast": FrameBudget(),
+    "paper": FrameBudget(max_side=1600, max_frames=1000),
+}
+"""The frame budget of each preset. ``fast`` trains a 1200x680 Replica capture at 600x340 and at
+most 200 keyframes; ``paper`` keeps 1200x680 and ScanNet's 1296x968 native, at most 1000."""
+
+NATIVE_BUDGET = FrameBudget(
+    max_side=None, max_frames=None, min_translation=0.0, min_rotation_deg=0.0
+)
+"""Every frame at native resolution (what reading a capture without a budget gives)."""
+
+
 DEFAULT_SCALE = 0.35
 """Default clustering scale (quantile space). The paper clusters at 0.8; on the 40-view
 synthetic scenes that merges neighbouring objects grouped by SAM-style masks (a duck on its
@@ -83,6 +136,7 @@ class PipelineConfig:
     Attributes:
         reconstruct, affinity, cluster, masks, assign, evaluate: each stage's own config.
         cache: the blending-weight cache truncation.
+        budget: the working resolution and keyframes (:class:`FrameBudget`).
         scale: the clustering scale in quantile space [0, 1] (:data:`DEFAULT_SCALE`; paper:
             0.8); re-clustering at another scale reuses everything trained.
         seed: the seed every stage's random choices derive from.
@@ -95,6 +149,7 @@ class PipelineConfig:
     assign: AssignConfig = field(default_factory=AssignConfig)
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     cache: CacheConfig = field(default_factory=CacheConfig)
+    budget: FrameBudget = field(default_factory=FrameBudget)
     scale: float = DEFAULT_SCALE
     seed: int = 0
 
@@ -151,6 +206,7 @@ _STAGES: dict[str, type[Any]] = {
     "assign": AssignConfig,
     "evaluate": EvaluateConfig,
     "cache": CacheConfig,
+    "budget": FrameBudget,
 }
 
 
@@ -161,4 +217,5 @@ def preset(name: str) -> PipelineConfig:
     return PipelineConfig(
         reconstruct=RECONSTRUCT_PRESETS[name],
         affinity=AFFINITY_PRESETS[name],
+        budget=BUDGET_PRESETS[name],
     )

@@ -20,11 +20,19 @@ import typing
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PlainValidator,
+    ValidationError,
+    WithJsonSchema,
+    create_model,
+)
 
 from dcseg.affinity.config import PRESETS as AFFINITY_PRESETS
 from dcseg.affinity.config import AffinityConfig
-from dcseg.config import DEFAULT_SCALE, CaptureOptions, PipelineConfig, preset
+from dcseg.config import DEFAULT_SCALE, CaptureOptions, FrameBudget, PipelineConfig, preset
 from dcseg.errors import InputError, Problem
 from dcseg.reconstruct.config import PRESETS as RECONSTRUCT_PRESETS
 from dcseg.reconstruct.config import ReconstructConfig
@@ -170,6 +178,59 @@ class CaptureOptionsIn(_Strict):
     intrinsics: tuple[Finite, Finite, Finite, Finite] | None = Field(
         default=None, description="(fx, fy, cx, cy) for layouts that store none"
     )
+    min_confidence: int = Field(
+        default=0,
+        ge=0,
+        le=2,
+        description="Record3D/Polycam: drop depth below this ARKit confidence (0 low, 1 medium, "
+        "2 high; 0 = keep all)",
+    )
+
+
+MAX_KEYFRAMES = 100_000
+"""Most keyframes a job may train on."""
+
+MIN_WORKING_SIDE = 16
+"""Smallest working resolution (longer side, pixels) a job may ask for."""
+
+
+def _cap(low: int, high: int, word: str) -> Any:
+    """An ``int`` in ``[low, high]`` or the word ``word`` (no cap), with one precise error."""
+
+    def check(value: Any) -> int | str | None:
+        if value is None or value == word:
+            return value  # type: ignore[no-any-return]
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ValueError(f"must be an integer in [{low}, {high}] or {word!r}, got {value!r}")
+        return value
+
+    schema = {
+        "anyOf": [
+            {"type": "integer", "minimum": low, "maximum": high},
+            {"const": word},
+            {"type": "null"},
+        ]
+    }
+    return Annotated[int | str | None, PlainValidator(check), WithJsonSchema(schema)]
+
+
+class BudgetOptionsIn(_Strict):
+    """Overrides of the preset's :class:`dcseg.config.FrameBudget` (unset = the preset's)."""
+
+    max_side: _cap(MIN_WORKING_SIDE, MAX_SIDE, "native") = Field(  # type: ignore[valid-type]
+        default=None,
+        description="downscale by an integer factor until the longer side is at most this "
+        f"(pixels, {MIN_WORKING_SIDE}-{MAX_SIDE}); 'native' = no downscaling",
+    )
+    max_frames: _cap(1, MAX_KEYFRAMES, "all") = Field(  # type: ignore[valid-type]
+        default=None, description=f"at most this many keyframes (1-{MAX_KEYFRAMES}); 'all' = no cap"
+    )
+    min_translation: float | None = Field(
+        default=None, ge=0.0, le=100.0, description="keyframe when the camera moved this far (m)"
+    )
+    min_rotation_deg: float | None = Field(
+        default=None, ge=0.0, le=180.0, description="... or turned this many degrees"
+    )
 
 
 class SegmentOptionsIn(_Strict):
@@ -199,10 +260,13 @@ class JobOptions(_Strict):
     segment: SegmentOptionsIn = Field(default_factory=SegmentOptionsIn)
     """Clustering scale, matcher and seed of the segmentation stages."""
 
+    budget: BudgetOptionsIn = Field(default_factory=BudgetOptionsIn)
+    """Working resolution and keyframe budget (e.g. ``{"max_side": "native"}``), each bounded."""
+
     def stored(self) -> dict[str, Any]:
         """The JSON form kept with a job; overrides hold only the fields that were given."""
         data = self.model_dump(mode="json")
-        for name in ("reconstruct", "affinity"):
+        for name in ("reconstruct", "affinity", "budget"):
             data[name] = getattr(self, name).model_dump(mode="json", exclude_unset=True)
         return data
 
@@ -230,11 +294,21 @@ def build_config(preset_name: str, options: JobOptions) -> tuple[PipelineConfig,
             affinity=affinity,
             scale=seg.scale,
             assign=dataclasses.replace(base.assign, mode=seg.matcher),
+            budget=_budget(base.budget, options.budget),
         ).seeded(seg.seed)
         capture = CaptureOptions(**options.capture.model_dump())
     except ValueError as error:
         raise InputError([Problem("options", str(error))]) from None
     return cfg, capture
+
+
+def _budget(base: FrameBudget, given: BudgetOptionsIn) -> FrameBudget:
+    """The preset's budget with the given fields; ``"native"``/``"all"`` lift a cap."""
+    changes: dict[str, Any] = {}
+    for name, value in given.model_dump(exclude_unset=True).items():
+        if value is not None:
+            changes[name] = None if value in ("native", "all") else value
+    return dataclasses.replace(base, **changes)
 
 
 def _replace(base: Any, overrides: BaseModel, where: str) -> Any:

@@ -16,11 +16,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
+from dcseg.assign.completion import complete_labels
 from dcseg.assign.consistency import inconsistent
+from dcseg.assign.instances import Instances, adopt_fragments, object_instances
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.blend import BlendWeights
 from dcseg.cluster.features import Clustering
-from dcseg.cluster.outliers import compact_labels
+from dcseg.cluster.outliers import adaptive_radius, compact_labels
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import CacheConfig, PipelineConfig
 from dcseg.evaluate.points import transfer_nearest, vote_projection
@@ -29,7 +31,7 @@ from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
-from dcseg.segment import class_agreement, cluster_map, label_map
+from dcseg.segment import class_agreement, class_evidence, cluster_map, label_map
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
 
 Progress = Callable[[str, float, str], None]
@@ -64,25 +66,38 @@ class Labels:
 
 @dataclass(frozen=True)
 class Segmentation:
-    """Instances and classes of a trained scene at one scale with one set of class masks.
+    """Objects, clusters and classes of a trained scene at one scale with one set of class masks.
 
     Attributes:
-        clustering: cluster per Gaussian (``labels [N]``, -1 = noise).
+        clustering: cluster per Gaussian (``labels [N]``, -1 = noise): the cluster level.
         assignment: class per cluster (``labels [K]``, -1 = unlabelled) and votes.
-        semantic_ids: ``[N]`` class per Gaussian, -1 = none.
+        instances: object instance per Gaussian and each object's class and score: the object
+            level (:mod:`dcseg.assign.instances`).
+        semantic_ids: ``[N]`` class per Gaussian after label completion, -1 = none.
         cluster_maps: per view name, ``[H, W]`` cluster per pixel (-1 = none), cleaned.
         label_maps: per view name, ``[H, W]`` class per pixel (-1 = none).
     """
 
     clustering: Clustering
     assignment: Assignment
+    instances: Instances
     semantic_ids: NDArray[np.int64]
     cluster_maps: dict[str, NDArray[np.int64]]
     label_maps: dict[str, NDArray[np.int64]]
 
     @property
-    def n_instances(self) -> int:
+    def n_clusters(self) -> int:
         return int(self.clustering.centers.shape[0])
+
+    @property
+    def n_instances(self) -> int:
+        return self.instances.n_instances
+
+    def instance_maps(self) -> dict[str, NDArray[np.int64]]:
+        """Per view name, ``[H, W]`` object instance per pixel (-1 = none): the cluster maps
+        through each cluster's object (:attr:`Instances.of_cluster`)."""
+        table = np.concatenate([[-1], self.instances.of_cluster]).astype(np.int64)
+        return {name: table[ids + 1] for name, ids in self.cluster_maps.items()}
 
     def labels(self) -> Labels:
         return Labels(self.semantic_ids, self.label_maps)
@@ -180,13 +195,18 @@ def segment_scene(
     n_classes: int,
     cfg: PipelineConfig,
     on_progress: Progress = _quiet,
+    class_names: Sequence[str] = (),
 ) -> Segmentation:
-    """Cluster at ``cfg.scale``, render cluster maps, and label clusters from class masks.
+    """Cluster at ``cfg.scale``, render cluster maps, label clusters, and build objects.
 
     With ``cfg.assign.min_share_ratio > 0``, Gaussians whose own class-mask evidence
     contradicts their cluster's class then leave it (:mod:`dcseg.assign.consistency`),
     clusters left empty are removed, and the cluster maps are rendered again; the votes stay
-    those of the first maps.
+    those of the first maps. Then unlabelled clusters adopt a touching labelled neighbour's
+    class, unlabelled Gaussians on labelled surfaces are completed
+    (:mod:`dcseg.assign.completion`), and clusters become object instances
+    (:mod:`dcseg.assign.instances`; ``class_names`` names the vocabulary, so that
+    ``cfg.assign.stuff_classes`` can be found in it).
     """
     features = gated_features(trained.affinity, cfg.scale)
     g = trained.gaussians
@@ -205,7 +225,56 @@ def segment_scene(
         maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, "refine")
     semantic_ids = label_map(clustering.labels, assignment.labels)
     label_maps = {name: label_map(ids, assignment.labels) for name, ids in maps.items()}
-    return Segmentation(clustering, assignment, semantic_ids, maps, label_maps)
+    instances, semantic_ids = _objects(
+        trained, semantic, n_classes, clustering, assignment, semantic_ids, cfg, class_names
+    )
+    on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
+    return Segmentation(clustering, assignment, instances, semantic_ids, maps, label_maps)
+
+
+def _objects(
+    trained: TrainedScene,
+    semantic: Mapping[str, SemanticMap],
+    n_classes: int,
+    clustering: Clustering,
+    assignment: Assignment,
+    semantic_ids: NDArray[np.int64],
+    cfg: PipelineConfig,
+    class_names: Sequence[str],
+) -> tuple[Instances, NDArray[np.int64]]:
+    """Adopt unlabelled clusters, complete labels, and build object instances."""
+    a = cfg.assign
+    labels = clustering.labels
+    means = trained.gaussians.means.detach().cpu().numpy().astype(np.float64)
+    radius = adaptive_radius(means, a.contact_factor, seed=cfg.seed)
+    if (not a.objects and not a.complete) or radius <= 0:
+        return _per_cluster(labels, assignment), semantic_ids
+    views = [v for v in trained.views if v.name in semantic]
+    maps = [semantic[v.name].classes for v in views]
+    evidence = class_evidence(_Blends(views), maps, len(means), n_classes)
+    fragments = adopt_fragments(means, labels, semantic_ids, evidence, radius, a)
+    ids = fragments.semantic if a.objects else semantic_ids
+    if a.complete:
+        ids = complete_labels(
+            means, ids, evidence, radius=radius, neighbours=a.neighbours,
+            rounds=a.completion_rounds, evidence_weight=a.evidence_weight,
+        )  # fmt: skip
+    if not a.objects:
+        return _per_cluster(labels, assignment), ids
+    stuff = [i for i, name in enumerate(class_names) if name in a.stuff_classes]
+    instances = object_instances(
+        means, labels, ids, fragments, clustering.centers, assignment.votes,
+        assignment.scores, stuff, radius, a,
+    )  # fmt: skip
+    return instances, ids
+
+
+def _per_cluster(labels: NDArray[np.int64], assignment: Assignment) -> Instances:
+    """One instance per cluster (``cfg.assign.objects`` off: the paper's output)."""
+    k = len(assignment.labels)
+    return Instances(
+        labels.copy(), assignment.labels.copy(), assignment.scores.copy(), np.arange(k)
+    )
 
 
 def _cluster_maps(

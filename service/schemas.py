@@ -110,6 +110,11 @@ class ArtifactPublic(BaseModel):
     size: int
     sha256: str
     url: str
+    """The download through the API (``Range``, ``ETag``; needs the API key)."""
+    download_url: str | None = None
+    """Object storage only: a presigned URL that downloads the file straight from the store,
+    without the API key, until ``download_url_expires_at``; None with local storage."""
+    download_url_expires_at: datetime | None = None
 
 
 class ArtifactsPublic(BaseModel):
@@ -119,3 +124,64 @@ class ArtifactsPublic(BaseModel):
 class Health(BaseModel):
     status: str
     checks: dict[str, str] = Field(default_factory=dict)
+
+
+class InstanceLinks(BaseModel):
+    self: str
+    exports: dict[str, str] = Field(default_factory=dict)
+    """Export format -> the URL of this object's export in that format."""
+
+
+class InstancePublic(BaseModel):
+    """One segmented object: its record in ``segment/instances.json`` plus its size and links.
+
+    Fields ``instances.json`` gains later are passed through unchanged."""
+
+    model_config = ConfigDict(extra="allow")
+
+    id: int
+    """Instance id (``instance_id`` in ``scene_labelled.ply``); ids start at 1."""
+    label: str | None
+    """Class name; None = unlabelled."""
+    label_id: int
+    """Index of the class in ``labels.json``; -1 = unlabelled."""
+    score: float
+    """Confidence of the class."""
+    n_gaussians: int
+    centroid: list[float]
+    bbox_min: list[float]
+    bbox_max: list[float]
+    size: list[float]
+    """Extent of the axis-aligned box per world axis (``bbox_max - bbox_min``, metres)."""
+    n_views: int | None = None
+    """Visibility: the number of views in which the object covers at least one pixel."""
+    links: InstanceLinks
+
+
+class InstancesPublic(BaseModel):
+    instances: list[InstancePublic]
+    next_page_token: str | None = None
+    """Absent on the last page."""
+    scene_sha256: str | None = None
+    """SHA-256 of the ``scene_labelled.ply`` whose ``instance_id`` column the ids index."""
+
+
+ExportFormat = Literal["ply", "spz", "splat", "glb"]
+"""Export formats (``dcseg.export.FORMATS``)."""
+
+
+class ExportLinks(BaseModel):
+    self: str
+
+
+class ExportPublic(BaseModel):
+    """An export of a job (the whole scene or one instance) in one format."""
+
+    format: str
+    instance: int | None
+    """The object exported alone; None = the whole scene."""
+    status: Literal["succeeded", "running"]
+    """``running``: the export is being made (202); ask again after ``Retry-After``."""
+    files: list[ArtifactPublic]
+    """The export's files (empty while it runs), downloaded like artifacts (ETag, Range)."""
+    links: ExportLinks

@@ -36,6 +36,37 @@ class AssignConfig:
             share floor instead (0.15; measured with the older 2D filter) erased a rare class
             that the maps miss in most views, which the relative test keeps; 0.7 started to
             erase it too, so the default stays clear of that edge.
+        objects: turn clusters into object instances (:mod:`dcseg.assign.instances`); False =
+            one instance per cluster (the paper). Clusters stay available as the cluster level.
+        contact_factor: two Gaussians touch when their centres are closer than this many times
+            the median nearest-neighbour spacing of the scene's Gaussians; used for cluster
+            adjacency, stuff surfaces and label completion.
+        neighbours: nearest neighbours looked at per Gaussian (adjacency and completion).
+        min_contacts: clusters are adjacent when at least this many of their Gaussians touch.
+        merge_min_cosine: adjacent clusters of one (non-stuff) class merge into one object when
+            the cosine of their unit feature centres is at least this.
+        merge_min_vote_cosine: ... and when their class-vote vectors over views (the
+            assignment's ``votes`` rows) have at least this cosine (they agree across views).
+        stuff_classes: class names that are surfaces, not objects: each connected surface of
+            such a class is one region, whatever its clusters (names absent from the
+            vocabulary are ignored).
+        surface_min_normal_cosine: two neighbouring stuff Gaussians are on one surface when
+            the |cosine| of their local normals (PCA of their neighbourhood) is at least this
+            (0.8 = 37 degrees) ...
+        surface_max_tilt: ... and the link between them lies in both tangent planes: the
+            |cosine| of the link with either normal is at most this (0.3 = 17 degrees). The
+            Gaussians on a corner have normals between the two walls' and pass the normal test
+            with both; the tilt test cuts them off, so walls meeting at a corner are two regions.
+        stuff_min_fraction: a stuff region smaller than this fraction of its class's largest
+            region (a corner's sliver of Gaussians between two walls) is no region: its
+            Gaussians join a near region of their class.
+        min_instance_gaussians: objects and stuff regions with fewer Gaussians are left out of
+            the instance list (their Gaussians keep their class, instance -1).
+        complete: label completion (:mod:`dcseg.assign.completion`): unlabelled Gaussians next
+            to labelled ones take a class from their neighbours and their own class evidence.
+        completion_rounds: passes of completion; each reaches one neighbourhood further.
+        evidence_weight: weight of a Gaussian's own class-evidence share against its
+            neighbours' class share in completion.
     """
 
     mode: AssignMode = "assignment"
@@ -43,6 +74,20 @@ class AssignConfig:
     min_iou: float = 0.05
     min_area: int = 1000
     min_share_ratio: float = 0.5
+    objects: bool = True
+    contact_factor: float = 3.0
+    neighbours: int = 8
+    min_contacts: int = 5
+    merge_min_cosine: float = 0.5
+    merge_min_vote_cosine: float = 0.5
+    stuff_classes: tuple[str, ...] = ("wall", "floor", "ceiling")
+    surface_min_normal_cosine: float = 0.8
+    surface_max_tilt: float = 0.3
+    stuff_min_fraction: float = 0.05
+    min_instance_gaussians: int = 20
+    complete: bool = True
+    completion_rounds: int = 3
+    evidence_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if self.mode not in ("assignment", "matching"):
@@ -57,3 +102,30 @@ class AssignConfig:
             raise ValueError(f"min_share_ratio must be in [0, 1], got {self.min_share_ratio}")
         if self.min_area < 0:
             raise ValueError(f"min_area must be >= 0, got {self.min_area}")
+        self._check_objects()
+
+    def _check_objects(self) -> None:
+        positive = {"contact_factor": self.contact_factor, "neighbours": self.neighbours}
+        for name, value in positive.items():
+            if value <= 0:
+                raise ValueError(f"{name} must be > 0, got {value}")
+        counts = {
+            "min_contacts": self.min_contacts,
+            "min_instance_gaussians": self.min_instance_gaussians,
+            "completion_rounds": self.completion_rounds,
+        }
+        for name, count in counts.items():
+            if count < 0:
+                raise ValueError(f"{name} must be >= 0, got {count}")
+        for name, cos in (
+            ("merge_min_cosine", self.merge_min_cosine),
+            ("merge_min_vote_cosine", self.merge_min_vote_cosine),
+            ("surface_min_normal_cosine", self.surface_min_normal_cosine),
+            ("surface_max_tilt", self.surface_max_tilt),
+        ):
+            if not -1.0 <= cos <= 1.0:
+                raise ValueError(f"{name} must be in [-1, 1], got {cos}")
+        if not 0.0 <= self.stuff_min_fraction <= 1.0:
+            raise ValueError(f"stuff_min_fraction must be in [0, 1], got {self.stuff_min_fraction}")
+        if self.evidence_weight < 0:
+            raise ValueError(f"evidence_weight must be >= 0, got {self.evidence_weight}")

@@ -33,7 +33,8 @@ def parse_intrinsics(text: str) -> tuple[float, float, float, float]:
 
 
 def add_capture_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``--stride --max-frames --size --depth-trunc --intrinsics`` to a verb's parser."""
+    """Add ``--stride --max-frames --size --depth-trunc --intrinsics --min-confidence`` to a
+    verb's parser."""
     group = parser.add_argument_group("capture options")
     group.add_argument("--stride", type=int, default=1, help="keep every N-th frame")
     group.add_argument("--max-frames", type=int, help="keep at most N frames (after --stride)")
@@ -44,6 +45,42 @@ def add_capture_options(parser: argparse.ArgumentParser) -> None:
         type=parse_intrinsics,
         help="fx,fy,cx,cy at native resolution, for layouts without stored intrinsics",
     )
+    group.add_argument(
+        "--min-confidence",
+        type=int,
+        default=0,
+        help="Record3D/Polycam: drop depth below this ARKit confidence level "
+        "(0 low, 1 medium, 2 high; default 0 = keep all)",
+    )
+
+
+def parse_cap(text: str) -> int | str:
+    """An integer (``640``) or a word (``native``, ``all``); the config builder checks which."""
+    return int(text) if text.strip().lstrip("-").isdigit() else text.strip().lower()
+
+
+def add_budget_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--max-side N|native --keyframes N|all`` (the preset's frame budget otherwise)."""
+    group = parser.add_argument_group("frame budget (default: the preset's)")
+    group.add_argument(
+        "--max-side",
+        type=parse_cap,
+        help="train at the capture's resolution divided by the smallest integer factor that "
+        "brings its longer side to at most N pixels; native = full resolution "
+        "(fast 640, paper 1600); outputs stay at the capture's resolution",
+    )
+    group.add_argument(
+        "--keyframes",
+        type=parse_cap,
+        help="train on at most N keyframes chosen by camera motion, evenly spaced; "
+        "all = every frame that moved (fast 200, paper 1000)",
+    )
+
+
+def budget_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``budget`` job options of the flags added by :func:`add_budget_options` (given only)."""
+    given = {"max_side": args.max_side, "max_frames": args.keyframes}
+    return {key: value for key, value in given.items() if value is not None}
 
 
 FLAGS = {
@@ -52,9 +89,12 @@ FLAGS = {
     "capture.size": "--size",
     "capture.depth_trunc": "--depth-trunc",
     "capture.intrinsics": "--intrinsics",
+    "capture.min_confidence": "--min-confidence",
     "segment.scale": "--scale",
     "segment.matcher": "--matcher",
     "segment.seed": "--seed",
+    "budget.max_side": "--max-side",
+    "budget.max_frames": "--keyframes",
 }
 """The flag of each job option the CLI sets (named in error messages)."""
 
@@ -67,6 +107,7 @@ def capture_fields(args: argparse.Namespace) -> dict[str, Any]:
         "size": args.size,
         "depth_trunc": args.depth_trunc,
         "intrinsics": args.intrinsics,
+        "min_confidence": args.min_confidence,
     }
 
 

@@ -13,7 +13,7 @@ from dcseg.cli._options import parse_size
 
 logger = logging.getLogger(__name__)
 
-NOISE_CHOICES = ("clean", "default", "heavy")
+NOISE_CHOICES = ("clean", "default", "heavy", "realistic")
 
 
 def register(subparsers: Any) -> None:
@@ -31,7 +31,30 @@ def register(subparsers: Any) -> None:
         "--size", type=parse_size, default=(320, 240), help="image size WxH (default 320x240)"
     )
     parser.add_argument(
-        "--noise", choices=NOISE_CHOICES, default="default", help="mask/depth noise level"
+        "--noise",
+        choices=NOISE_CHOICES,
+        default="default",
+        help="mask/depth noise level; realistic = consistent segmenter failures (look-alike "
+        "classes, missed rare objects, coarse maps, merged and missing masks) and a larger "
+        "vocabulary",
+    )
+    parser.add_argument(
+        "--depth-sigma",
+        type=float,
+        default=None,
+        help="depth noise at 1 m in metres, growing with z squared (default: the noise level's)",
+    )
+    parser.add_argument(
+        "--pose-error-deg",
+        type=float,
+        default=0.0,
+        help="rotation error of the written poses, degrees (standard deviation; default 0)",
+    )
+    parser.add_argument(
+        "--pose-error-m",
+        type=float,
+        default=0.0,
+        help="translation error of the written poses per axis, metres (std; default 0)",
     )
     parser.add_argument(
         "--supersample",
@@ -65,7 +88,15 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         cfg = SynthConfig(
-            args.seed, args.frames, args.size[0], args.size[1], args.noise, args.supersample
+            args.seed,
+            args.frames,
+            args.size[0],
+            args.size[1],
+            args.noise,
+            args.supersample,
+            depth_sigma=args.depth_sigma,
+            pose_error_deg=args.pose_error_deg,
+            pose_error_m=args.pose_error_m,
         )
     except ValueError as exc:
         sys.stderr.write(f"dcseg synth: {exc}\n")

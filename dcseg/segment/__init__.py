@@ -13,14 +13,23 @@ from dcseg._lazy import lazy_exports
 
 if TYPE_CHECKING:
     from dcseg.segment.config import MaskConfig
-    from dcseg.segment.evidence import class_agreement
+    from dcseg.segment.evidence import class_agreement, class_evidence, vote_3d
     from dcseg.segment.maps import cluster_map, label_map
 
-__all__ = ["MaskConfig", "class_agreement", "cluster_map", "label_map"]
+__all__ = [
+    "MaskConfig",
+    "class_agreement",
+    "class_evidence",
+    "cluster_map",
+    "label_map",
+    "vote_3d",
+]
 
 _HOME = {
     "MaskConfig": "dcseg.segment.config",
     "class_agreement": "dcseg.segment.evidence",
+    "class_evidence": "dcseg.segment.evidence",
+    "vote_3d": "dcseg.segment.evidence",
     "cluster_map": "dcseg.segment.maps",
     "label_map": "dcseg.segment.maps",
 }

@@ -3,8 +3,10 @@
 A Gaussian's evidence for class ``c`` in one view is its blending weight summed over the
 pixels the class-aware map labels ``c``: a sparse product over the view's frozen blending
 weights, like the cluster maps (:mod:`dcseg.segment.maps`). Only two numbers per Gaussian are
-kept — the evidence for the class of its cluster and for any class — so memory is O(N),
-whatever the vocabulary's size.
+kept by :func:`class_agreement` — the evidence for the class of its cluster and for any class —
+so memory is O(N), whatever the vocabulary's size. :func:`class_evidence` keeps the whole
+``[N, C]`` table, and :func:`vote_3d` turns it into the training-free 3D vote (each Gaussian
+takes the class with the largest summed weight: FlashSplat-style lifting of the 2D maps).
 """
 
 from __future__ import annotations
@@ -113,3 +115,109 @@ def class_agreement(
         agree += a.cpu().numpy()
         total += t.cpu().numpy()
     return agree, total
+
+
+def view_evidence(blend: BlendWeights, class_map: NDArray[Any], n_classes: int) -> torch.Tensor:
+    """One view's ``[N_ids, C]`` float64 evidence: weight per Gaussian over pixels of each class.
+
+    Rows cover the Gaussians ``0 .. max(ids)``; :func:`class_evidence` pads them to N.
+
+    Args:
+        blend: the view's blending weights.
+        class_map: ``[H, W]`` int class per pixel, -1 = none, every class below ``n_classes``.
+        n_classes: C.
+    """
+    classes = _checked_classes(blend, class_map, n_classes)
+    n = int(blend.ids.max()) + 1 if blend.nnz else 0
+    if blend.ids.device.type != "cpu":
+        return evidence_torch(
+            blend, torch.as_tensor(classes, device=blend.ids.device), n, n_classes
+        )
+    from dcseg.blend_kernels import add_class_evidence
+
+    evidence = np.zeros((n, n_classes))
+    add_class_evidence(
+        blend.offsets.numpy(), blend.ids.numpy(), blend.weights.detach().numpy(), classes, evidence
+    )
+    return torch.from_numpy(evidence)
+
+
+def _checked_classes(blend: BlendWeights, class_map: NDArray[Any], n_classes: int) -> NDArray[Any]:
+    if np.shape(class_map) != (blend.height, blend.width):
+        raise ValueError(
+            f"class map {np.shape(class_map)} does not match the view's "
+            f"{(blend.height, blend.width)}"
+        )
+    classes = np.asarray(class_map, dtype=np.int64).reshape(-1)
+    if classes.size and (classes.min() < -1 or classes.max() >= n_classes):
+        raise ValueError(f"class map values must be in [-1, {n_classes}), got {classes.max()}")
+    return classes
+
+
+def evidence_torch(
+    blend: BlendWeights, pixel_class: torch.Tensor, n: int, n_classes: int
+) -> torch.Tensor:
+    """:func:`view_evidence` with tensor operations on any device (``pixel_class`` ``[H*W]``)."""
+    pixel_class = pixel_class[blend.rows()]
+    seen = pixel_class >= 0
+    ids = blend.ids.long()[seen]
+    flat = ids * n_classes + pixel_class[seen]
+    out = torch.zeros(n * n_classes, dtype=torch.float64, device=blend.ids.device)
+    out = out.index_add_(0, flat, blend.weights.double()[seen])
+    return out.reshape(n, n_classes)
+
+
+def class_evidence(
+    blends: Sequence[BlendWeights], class_maps: Sequence[NDArray[Any]], n: int, n_classes: int
+) -> NDArray[np.float64]:
+    """Per Gaussian and class, the blending weight summed over the class-aware maps of all views.
+
+    ``evidence[g, c]`` is the weight Gaussian ``g`` contributes to pixels the class-aware map
+    labels ``c``, summed over views; a row of zeros means ``g`` never reaches a labelled pixel.
+    Views are read one at a time (``blends`` may stream them, as the pipeline's ``_Blends``).
+
+    Args:
+        blends: per view, the blending weights.
+        class_maps: per view, ``[H, W]`` int class per pixel (-1 = none), same views in order.
+        n: N, the number of Gaussians.
+        n_classes: C, the vocabulary's size.
+
+    Returns:
+        ``[N, C]`` float64 evidence.
+
+    Example:
+        >>> evidence = class_evidence(blends, maps, n, n_classes)  # doctest: +SKIP
+        >>> labels = vote_3d(evidence)
+    """
+    if len(blends) != len(class_maps):
+        raise ValueError(f"{len(blends)} blending-weight views but {len(class_maps)} class maps")
+    evidence = np.zeros((n, n_classes))
+    for i, (blend, class_map) in enumerate(zip(blends, class_maps, strict=True)):
+        try:
+            view = view_evidence(blend, class_map, n_classes).cpu().numpy()
+        except ValueError as error:
+            raise ValueError(f"view {i}: {error}") from None
+        if view.shape[0] > n:
+            raise ValueError(f"view {i}: Gaussian ids go up to {view.shape[0] - 1} but n = {n}")
+        evidence[: view.shape[0]] += view
+    return evidence
+
+
+def vote_3d(evidence: NDArray[Any], min_evidence: float = 0.0) -> NDArray[np.int64]:
+    """The training-free 3D vote: each Gaussian takes its class of largest summed weight.
+
+    Args:
+        evidence: ``[N, C]`` from :func:`class_evidence`.
+        min_evidence: a Gaussian whose evidence over all classes is at most this gets -1
+            (0: only Gaussians that never reach a labelled pixel stay unlabelled).
+
+    Returns:
+        ``[N]`` int64 class (ties go to the lower index), -1 = none.
+    """
+    table = np.asarray(evidence, dtype=np.float64)
+    if table.ndim != 2:
+        raise ValueError(f"evidence must be [N, C], got shape {table.shape}")
+    if table.shape[1] == 0:
+        return np.full(table.shape[0], -1, dtype=np.int64)
+    best = table.argmax(axis=1)
+    return np.where(table.sum(axis=1) > min_evidence, best, -1).astype(np.int64)

@@ -6,7 +6,7 @@ import logging
 import math
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +17,14 @@ from dcseg.errors import InputError
 from dcseg.synth.agnostic import simulate_agnostic
 from dcseg.synth.cameras import CameraModel, orbit_poses
 from dcseg.synth.catalogue import VOCABULARY
-from dcseg.synth.noise import NOISE_LEVELS, noisy_depth
+from dcseg.synth.failures import (
+    REALISTIC_VOCABULARY,
+    InstanceFates,
+    draw_fates,
+    realistic_agnostic,
+    realistic_semantic,
+)
+from dcseg.synth.noise import NOISE_LEVELS, NoiseLevel, noisy_depth
 from dcseg.synth.render import (
     Lighting,
     RenderedView,
@@ -37,7 +44,7 @@ GT_VOXEL = 0.02
 CAMERA_RADII = (2.1, 1.6)
 
 # Independent random streams, so that changing one stage leaves the others' draws alone.
-_SCENE, _CAMERA, _AGNOSTIC, _SEMANTIC, _DEPTH, _PARTS = range(6)
+_SCENE, _CAMERA, _AGNOSTIC, _SEMANTIC, _DEPTH, _PARTS, _FATES, _POSE = range(8)
 
 
 @dataclass(frozen=True)
@@ -48,11 +55,19 @@ class SynthConfig:
         seed: seeds every random choice (non-negative).
         frames: number of camera views.
         width, height: image size in pixels.
-        noise: ``clean``, ``default`` or ``heavy`` (simulated masks and depth; ground truth
-            is always perfect).
+        noise: a name in :data:`~dcseg.synth.noise.NOISE_LEVELS`: ``clean``, ``default``,
+            ``heavy`` (independent per-view errors) or ``realistic`` (consistent segmenter
+            failures, :mod:`dcseg.synth.failures`; a larger vocabulary). Ground truth is
+            always perfect.
         supersample: colour is rendered at this factor and area-averaged (anti-aliasing, like
             a camera integrating over its pixels); 1 = point-sampled, jagged edges that differ
             from view to view. Depth, masks and ground truth are never supersampled.
+        depth_sigma: depth noise at 1 m (metres, grows with z squared) instead of the noise
+            level's; None = the level's.
+        pose_error_deg, pose_error_m: the poses written into the capture are off by a
+            rotation of this many degrees (standard deviation of the angle, random axis) and
+            a translation of this standard deviation per axis; images, depth and ground truth
+            come from the true poses. 0 = exact poses.
     """
 
     seed: int = 0
@@ -61,6 +76,9 @@ class SynthConfig:
     height: int = 240
     noise: str = "default"
     supersample: int = 2
+    depth_sigma: float | None = None
+    pose_error_deg: float = 0.0
+    pose_error_m: float = 0.0
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -73,6 +91,22 @@ class SynthConfig:
             raise ValueError(f"noise must be one of {sorted(NOISE_LEVELS)}, got {self.noise!r}")
         if not 1 <= self.supersample <= 4:
             raise ValueError(f"supersample must be between 1 and 4, got {self.supersample}")
+        if self.depth_sigma is not None and not 0.0 <= self.depth_sigma <= 0.1:
+            raise ValueError(f"depth_sigma must be between 0 and 0.1, got {self.depth_sigma}")
+        if not 0.0 <= self.pose_error_deg <= 10.0:
+            raise ValueError(f"pose_error_deg must be between 0 and 10, got {self.pose_error_deg}")
+        if not 0.0 <= self.pose_error_m <= 0.5:
+            raise ValueError(f"pose_error_m must be between 0 and 0.5, got {self.pose_error_m}")
+
+    def level(self) -> NoiseLevel:
+        """The noise level, with ``depth_sigma`` when it is set."""
+        level = NOISE_LEVELS[self.noise]
+        return level if self.depth_sigma is None else replace(level, depth_sigma=self.depth_sigma)
+
+    def vocabulary(self) -> Vocabulary:
+        """The class names: the realistic level adds look-alikes after the scene's classes."""
+        failures = NOISE_LEVELS[self.noise].failures
+        return Vocabulary(VOCABULARY if failures is None else REALISTIC_VOCABULARY)
 
 
 @dataclass(frozen=True)
@@ -163,7 +197,7 @@ def generate_scene(cfg: SynthConfig) -> SynthScene:
     )
     return SynthScene(
         config=cfg,
-        vocabulary=Vocabulary(VOCABULARY),
+        vocabulary=cfg.vocabulary(),
         instances=tuple(instances),
         capture=Capture(tuple(frames), layout="dcseg", root="synth"),
         agnostic=tuple(extras["agnostic"]),
@@ -211,9 +245,12 @@ def _simulate_frames(
     """Frames with noisy depth, simulated masks and the per-frame ground truth."""
     from dcseg.io.masks import masks_from_dense
 
-    level = NOISE_LEVELS[cfg.noise]
+    level = cfg.level()
     by_id = {inst.id: inst for inst in instances}
     normals = _part_normals(cfg, instances)
+    fates = None
+    if level.failures is not None:
+        fates = draw_fates(by_id, level.failures, _rng(cfg, _FATES))
     lookup = instance_lookup(instances)
     k = camera.intrinsics()
     frames: list[Frame] = []
@@ -224,16 +261,57 @@ def _simulate_frames(
         name = f"frame_{i:04d}"
         inst_map, class_map = ground_truth_maps(view.body, lookup)
         xyz = backproject(view.depth, k.matrix(), c2w)
-        dense = simulate_agnostic(inst_map, xyz, by_id, normals, level, _rng(cfg, _AGNOSTIC, i))
-        classes = simulate_semantic(inst_map, class_map, by_id, level, _rng(cfg, _SEMANTIC, i))
+        dense, classes = _segmenter_output(
+            cfg, i, (inst_map, class_map, xyz), by_id, normals, fates
+        )
         depth = noisy_depth(view.depth, level, _rng(cfg, _DEPTH, i))
-        frames.append(Frame(name, view.rgb, depth, k, c2w.copy()))
+        pose = perturbed_pose(c2w, cfg.pose_error_deg, cfg.pose_error_m, _rng(cfg, _POSE, i))
+        frames.append(Frame(name, view.rgb, depth, k, pose))
         extras["agnostic"].append(masks_from_dense(name, dense))
         extras["semantic_map"].append(SemanticMap(name, classes))
         extras["depth"].append(view.depth)
         extras["semantic"].append(class_map)
         extras["instance"].append(inst_map)
     return frames, extras
+
+
+def _segmenter_output(
+    cfg: SynthConfig,
+    i: int,
+    maps: tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.float64]],
+    by_id: dict[int, SceneInstance],
+    normals: dict[int, NDArray[np.float64]],
+    fates: InstanceFates | None,
+) -> tuple[NDArray[np.bool_], NDArray[np.int32]]:
+    """View ``i``'s simulated class-agnostic masks ``[M, H, W]`` and class map ``[H, W]``."""
+    inst_map, class_map, xyz = maps
+    level = cfg.level()
+    agnostic_rng, semantic_rng = _rng(cfg, _AGNOSTIC, i), _rng(cfg, _SEMANTIC, i)
+    if level.failures is None or fates is None:
+        dense = simulate_agnostic(inst_map, xyz, by_id, normals, level, agnostic_rng)
+        return dense, simulate_semantic(inst_map, class_map, by_id, level, semantic_rng)
+    failures = level.failures
+    dense = realistic_agnostic(inst_map, xyz, by_id, normals, level, failures, agnostic_rng)
+    classes = realistic_semantic(inst_map, class_map, by_id, fates, level, failures, semantic_rng)
+    return dense, classes
+
+
+def perturbed_pose(
+    c2w: NDArray[np.float64], error_deg: float, error_m: float, rng: np.random.Generator
+) -> NDArray[np.float64]:
+    """``c2w`` rotated about its camera centre by an angle ~ N(0, ``error_deg``) about a
+    random axis and moved by N(0, ``error_m``) per axis (a copy; exact when both are 0)."""
+    from scipy.spatial.transform import Rotation
+
+    out = np.array(c2w, dtype=np.float64, copy=True)
+    if error_deg > 0:
+        axis = rng.normal(size=3)
+        angle = np.deg2rad(rng.normal(0.0, error_deg))
+        rotation = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+        out[:3, :3] = rotation @ out[:3, :3]
+    if error_m > 0:
+        out[:3, 3] += rng.normal(0.0, error_m, size=3)
+    return out
 
 
 def _part_normals(

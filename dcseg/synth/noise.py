@@ -9,6 +9,51 @@ from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)
+class Failures:
+    """Consistent segmenter failures (the ``realistic`` level); probabilities per instance
+    unless stated otherwise.
+
+    Attributes:
+        lookalike_prob: chance an object or table is taken for one of its look-alikes
+            (:data:`~dcseg.synth.failures.LOOKALIKES`).
+        lookalike_view_prob: per view, chance such an instance shows its look-alike class
+            (the rest of the views are right): most views agree on the mistake.
+        rare_miss_prob: chance a rare-class object
+            (:data:`~dcseg.synth.catalogue.RARE_CLASSES`) is missed in every view (it takes
+            its support's class: maps never abstain).
+        swallow_fraction: per view, objects covering less than this fraction of the image take
+            their support's class.
+        class_factor: class maps are predicted at 1/``class_factor`` resolution and upsampled
+            by repetition.
+        never_abstain: every pixel gets a class (unlabelled pixels take the nearest label).
+        mask_factor: class-agnostic masks are computed at 1/``mask_factor`` resolution.
+        merge_prob: per view and pair of touching objects, chance they share one mask.
+        uncovered: per view, the fraction of visible objects that get no mask is drawn
+            uniformly from this range.
+    """
+
+    lookalike_prob: float = 0.5
+    lookalike_view_prob: float = 0.8
+    rare_miss_prob: float = 0.7
+    swallow_fraction: float = 0.0015
+    class_factor: int = 4
+    never_abstain: bool = True
+    mask_factor: int = 2
+    merge_prob: float = 0.5
+    uncovered: tuple[float, float] = (0.1, 0.3)
+
+    def __post_init__(self) -> None:
+        for name in ("lookalike_prob", "lookalike_view_prob", "rare_miss_prob", "merge_prob"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.class_factor < 1 or self.mask_factor < 1:
+            raise ValueError("class_factor and mask_factor must be >= 1")
+        lo, hi = self.uncovered
+        if not 0.0 <= lo <= hi < 1.0:
+            raise ValueError(f"uncovered must be a range within [0, 1), got {self.uncovered}")
+
+
+@dataclass(frozen=True)
 class NoiseLevel:
     """How imperfect the simulated 2D masks and depth are (all probabilities are per view).
 
@@ -28,6 +73,8 @@ class NoiseLevel:
         depth_sigma: Gaussian depth noise standard deviation at 1 m (grows with z squared).
         edge_drop_prob: chance a pixel at a depth discontinuity loses its depth.
         random_drop_prob: chance any pixel loses its depth.
+        failures: consistent segmenter failures (:mod:`dcseg.synth.failures`) on top of the
+            per-view noise above; None = none (the per-view noise alone).
     """
 
     part_prob: float = 0.0
@@ -45,6 +92,7 @@ class NoiseLevel:
     depth_sigma: float = 0.0
     edge_drop_prob: float = 0.0
     random_drop_prob: float = 0.0
+    failures: Failures | None = None
 
 
 NOISE_LEVELS: dict[str, NoiseLevel] = {
@@ -82,6 +130,22 @@ NOISE_LEVELS: dict[str, NoiseLevel] = {
         depth_sigma=0.004,
         edge_drop_prob=0.9,
         random_drop_prob=0.01,
+    ),
+    "realistic": NoiseLevel(
+        part_prob=0.7,
+        group_prob=0.7,
+        wall_split_prob=0.5,
+        jitter_prob=0.5,
+        jitter_px=2,
+        miss_prob=0.05,
+        spurious_rate=1.5,
+        bleed_prob=0.5,
+        bleed_px=2,
+        confuse_prob=0.05,
+        depth_sigma=0.0015,
+        edge_drop_prob=0.5,
+        random_drop_prob=0.002,
+        failures=Failures(),
     ),
 }
 """The named noise levels of ``dcseg synth --noise``."""

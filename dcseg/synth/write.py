@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 
 from dcseg.synth.catalogue import RARE_CLASSES
+from dcseg.synth.failures import LOOKALIKES
 from dcseg.synth.generate import SynthScene
-from dcseg.synth.noise import NOISE_LEVELS
 from dcseg.synth.semantic import CONFUSIONS
 
 logger = logging.getLogger(__name__)
@@ -85,7 +85,9 @@ def scene_summary(scene: SynthScene, timings: dict[str, float]) -> dict[str, Any
         "vocabulary": list(scene.vocabulary.names),
         "rare_classes": list(RARE_CLASSES),
         "confusions": dict(CONFUSIONS),
-        "noise_level": asdict(NOISE_LEVELS[cfg.noise]),
+        "lookalikes": {k: list(v) for k, v in LOOKALIKES.items()},
+        "noise_level": asdict(cfg.level()),
+        "pose_error": {"deg": cfg.pose_error_deg, "m": cfg.pose_error_m},
         "instances": [inst.record() for inst in scene.instances],
         "gt_points": len(scene.ground_truth.labels),
         "timings": {k: round(v, 3) for k, v in timings.items()},

@@ -11,7 +11,7 @@ import pytest
 from dcseg.affinity.config import PRESETS as AFFINITY_PRESETS
 from dcseg.affinity.config import AffinityConfig
 from dcseg.cli import main
-from dcseg.config import CaptureOptions, preset
+from dcseg.config import BUDGET_PRESETS, CaptureOptions, FrameBudget, PipelineConfig, preset
 from dcseg.errors import InputError
 from dcseg.options import (
     AFFINITY_BOUNDS,
@@ -112,3 +112,53 @@ def test_cli_refuses_out_of_range_values_naming_the_flag(tmp_path: Path, capsys)
         main([*args, "--size", "90000x10"])
     with pytest.raises(SystemExit, match=r"--depth-trunc"):
         main([*args, "--depth-trunc", "inf"])
+    with pytest.raises(SystemExit, match=r"--min-confidence \(options.capture.min_confidence\)"):
+        main([*args, "--min-confidence", "3"])
+
+
+def test_min_confidence_is_bounded_and_reaches_the_capture_options():
+    assert build_config("fast", parse_options({}))[1].min_confidence == 0
+    _, capture = build_config("fast", parse_options({"capture": {"min_confidence": 2}}))
+    assert capture.min_confidence == 2
+    for bad in (-1, 3, 1.5):
+        with pytest.raises(InputError) as caught:
+            parse_options({"capture": {"min_confidence": bad}})
+        assert [p.path for p in caught.value.problems] == ["options.capture.min_confidence"]
+
+
+@pytest.mark.parametrize("name", ["fast", "paper"])
+def test_budget_defaults_are_the_preset_and_words_lift_the_caps(name):
+    cfg, _ = build_config(name, JobOptions())
+    assert cfg.budget == BUDGET_PRESETS[name]
+    lifted, _ = build_config(name, parse_options({"budget": {"max_side": "native"}}))
+    assert lifted.budget.max_side is None
+    assert lifted.budget.max_frames == BUDGET_PRESETS[name].max_frames
+    options = parse_options({"budget": {"max_frames": "all", "min_rotation_deg": 0}})
+    assert build_config(name, options)[0].budget.max_frames is None
+    assert options.stored()["budget"] == {"max_frames": "all", "min_rotation_deg": 0}
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("max_side", 8),
+        ("max_side", 10**6),
+        ("max_side", "big"),
+        ("max_side", True),
+        ("max_frames", 0),
+        ("max_frames", "none"),
+        ("min_translation", -1.0),
+        ("min_rotation_deg", 181.0),
+    ],
+)
+def test_budget_out_of_bounds_is_named(field, value):
+    with pytest.raises(InputError) as caught:
+        parse_options({"budget": {field: value}})
+    assert [p.path for p in caught.value.problems] == [f"options.budget.{field}"]
+
+
+def test_budget_travels_in_the_pipeline_config():
+    cfg = preset("paper")
+    assert PipelineConfig.from_dict(cfg.to_dict()).budget == BUDGET_PRESETS["paper"]
+    with pytest.raises(ValueError, match="max_side"):
+        FrameBudget(max_side=0)

@@ -30,6 +30,7 @@ OUTPUTS = (
     "state/gaussians.ply",
     "state/affinity.npz",
     "state/views.json",
+    "state/clusters.npz",
 )
 
 
@@ -76,6 +77,26 @@ def test_run_writes_every_output(run_dir: Path, scene: Path) -> None:
         assert ids.dtype == np.uint16 and ids.shape == (48, 64)
     instances = json.loads((run_dir / "instances.json").read_text())["instances"]
     assert instances and all(r["n_gaussians"] > 0 for r in instances)
+    assert record["counts"]["instances"] == len(instances)
+
+
+def test_ply_carries_objects_and_clusters(run_dir: Path) -> None:
+    """``instance_id`` is the object level (what instances.json lists), ``cluster_id`` the
+    cluster level (what state/clusters.npz holds); every object is one class."""
+    from dcseg.io.ply import read_ply_extra
+
+    ply = run_dir / "scene_labelled.ply"
+    objects, clusters = read_ply_extra(ply, "instance_id"), read_ply_extra(ply, "cluster_id")
+    semantic = read_ply_extra(ply, "semantic_id")
+    assert objects is not None and clusters is not None and semantic is not None
+    saved = np.load(run_dir / "state" / "clusters.npz")
+    assert np.array_equal(np.where(saved["labels"] >= 0, saved["labels"] + 1, -1), clusters)
+    records = json.loads((run_dir / "instances.json").read_text())["instances"]
+    assert sorted(r["id"] for r in records) == sorted(set(objects[objects > 0].tolist()))
+    for r in records:
+        members = objects == r["id"]
+        assert r["n_gaussians"] == int(members.sum())
+        assert np.bincount(semantic[members] + 1).argmax() - 1 == r["label_id"]
 
 
 def test_run_quality_floor(run_dir: Path) -> None:
@@ -206,8 +227,9 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
     n_classes = len(saved.vocabulary)
 
     def segment(ratio: float) -> Segmentation:
-        cfg = replace(base, assign=replace(base.assign, min_share_ratio=ratio))
-        return segment_scene(saved.trained, saved.semantic, n_classes, cfg)
+        # completion and objects off: this test is about the consistency step alone
+        assign = replace(base.assign, min_share_ratio=ratio, complete=False, objects=False)
+        return segment_scene(saved.trained, saved.semantic, n_classes, replace(base, assign=assign))
 
     plain, refined = segment(0.0), segment(0.9)
     before, after = plain.semantic_ids, refined.semantic_ids
@@ -220,7 +242,7 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
     maps = [saved.semantic[v.name].classes for v in views]
     agree, total = class_agreement([v.blend for v in views], maps, before)
     clusters = plain.clustering.labels
-    for k in range(plain.n_instances):
+    for k in range(plain.n_clusters):
         member = (clusters == k) & (before >= 0) & (total > 0)
         if not member.any():
             continue
@@ -229,7 +251,7 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
         assert np.array_equal(dropped[member], low), k
     # Clusters are compact 0..K-1 and the assignment's arrays follow them.
     labels = refined.clustering.labels
-    k = refined.n_instances
+    k = refined.n_clusters
     assert np.array_equal(np.unique(labels[labels >= 0]), np.arange(k))
     assert refined.assignment.labels.shape == (k,) and refined.assignment.votes.shape[0] == k
     # The cluster maps were rendered from the refined clusters.

@@ -38,6 +38,10 @@ def _paths(response: Any) -> list[str]:
         ({"reconstruct": {"max_gaussians": 10**12}}, "options.reconstruct.max_gaussians"),
         ({"reconstruct": {"bogus": 1}}, "options.reconstruct.bogus"),
         ({"capture": {"stride": 0}}, "options.capture.stride"),
+        ({"budget": {"max_side": 4}}, "options.budget.max_side"),
+        ({"budget": {"max_side": "huge"}}, "options.budget.max_side"),
+        ({"budget": {"max_frames": 10**9}}, "options.budget.max_frames"),
+        ({"budget": {"min_rotation_deg": 720}}, "options.budget.min_rotation_deg"),
     ],
 )
 def test_job_options_out_of_bounds_answer_422_naming_the_field(

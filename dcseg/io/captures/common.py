@@ -24,7 +24,9 @@ from numpy.typing import NDArray
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
 from dcseg.io import images
+from dcseg.io.exr import read_exr_depth
 from dcseg.io.images import display_path, read_image, resize_area, resize_nearest
+from dcseg.io.lzfse_buffers import read_lzfse_array
 from dcseg.types import Capture, Frame, Intrinsics, capture_problems
 
 logger = logging.getLogger(__name__)
@@ -34,6 +36,11 @@ _R = TypeVar("_R")
 
 OPTIONS_SOURCE = "CaptureOptions.intrinsics"
 """The ``source`` of a :class:`Camera` given through the options."""
+
+RAW_DEPTH_SUFFIX = ".depth"
+"""Depth files stored as LZFSE-compressed float32 metres of :attr:`FrameSpec.raw_size`."""
+RAW_CONFIDENCE_SUFFIX = ".conf"
+"""Confidence files stored as LZFSE-compressed uint8 levels of :attr:`FrameSpec.raw_size`."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +75,11 @@ class FrameSpec:
         depth_invalid: stored integer values meaning "no depth" besides 0.
         depth_k: ``[3, 3]`` camera matrix of the depth image when it is registered to the colour
             image at another resolution (ScanNet); used to resample depth onto the colour grid.
+        raw_size: ``(width, height)`` of depth and confidence stored as LZFSE-compressed raw
+            buffers (Record3D ``.depth`` float32 metres, ``.conf`` uint8), from the metadata.
+        confidence: the per-pixel ARKit confidence of the depth image (levels 0, 1, 2, at the
+            depth resolution), for layouts that store one; read only when
+            ``CaptureOptions.min_confidence`` > 0.
     """
 
     name: str
@@ -79,6 +91,8 @@ class FrameSpec:
     depth_scale: float = 1000.0
     depth_invalid: tuple[int, ...] = ()
     depth_k: NDArray[np.float64] | None = None
+    raw_size: tuple[int, int] | None = None
+    confidence: Path | None = None
 
 
 @dataclass
@@ -246,6 +260,7 @@ def _load_frame(
         return None, problems
     size = (int(rgb.shape[1]), int(rgb.shape[0]))
     try:
+        depth = mask_low_confidence(depth, spec, root, options.min_confidence)
         depth = _depth_on_colour_grid(depth, size, spec, resample_depth, root)
         intrinsics = _native_intrinsics(spec.camera, size, rel(spec.rgb, root))
     except InputError as exc:
@@ -276,6 +291,11 @@ def read_colour(path: Path, root: Path) -> NDArray[np.uint8]:
 def read_depth(spec: FrameSpec, root: Path) -> NDArray[np.float32]:
     """A depth file as ``[H, W]`` float32 metres, 0 = invalid (before any resampling)."""
     shown = rel(spec.depth, root)
+    if spec.depth.suffix == RAW_DEPTH_SUFFIX:
+        metres = read_lzfse_array(spec.depth, shown, _raw_size(spec), np.float32)
+        return np.where(np.isfinite(metres) & (metres > 0), metres, np.float32(0.0))
+    if spec.depth.suffix.lower() == ".exr":
+        return read_exr_depth(spec.depth, shown)
     raw = _read_npy(spec.depth, shown) if spec.depth.suffix == ".npy" else None
     if raw is None:
         raw = read_image(spec.depth, root=root)
@@ -291,6 +311,57 @@ def read_depth(spec: FrameSpec, root: Path) -> NDArray[np.float32]:
     for value in spec.depth_invalid:
         metres[raw == value] = 0.0
     return metres
+
+
+def _raw_size(spec: FrameSpec) -> tuple[int, int]:
+    if spec.raw_size is None:  # pragma: no cover - layouts listing raw buffers set it
+        raise InputError.single(str(spec.depth), "raw buffer without a size in the metadata")
+    return spec.raw_size
+
+
+def read_confidence(spec: FrameSpec, root: Path) -> NDArray[np.uint8]:
+    """A frame's ARKit confidence map as ``[H, W]`` uint8 levels 0 (low), 1, 2 (high)."""
+    assert spec.confidence is not None
+    shown = rel(spec.confidence, root)
+    if spec.confidence.suffix == RAW_CONFIDENCE_SUFFIX:
+        levels = read_lzfse_array(spec.confidence, shown, _raw_size(spec), np.uint8)
+    else:
+        levels = read_image(spec.confidence, root=root)
+        if levels.ndim != 2 or levels.dtype != np.uint8:
+            raise InputError.single(
+                shown,
+                f"confidence must be a single-channel 8-bit image, got {levels.dtype} "
+                f"of shape {tuple(levels.shape)}",
+            )
+    top = int(levels.max(initial=0))
+    if top > 2:
+        raise InputError.single(
+            shown, f"confidence values must be ARKit levels 0, 1 or 2, found {top}"
+        )
+    return np.asarray(levels, dtype=np.uint8)
+
+
+def mask_low_confidence(
+    depth: NDArray[np.float32], spec: FrameSpec, root: Path, min_confidence: int
+) -> NDArray[np.float32]:
+    """``depth`` with pixels whose confidence is below ``min_confidence`` set to 0.
+
+    Layouts without confidence (``spec.confidence`` None) and ``min_confidence`` 0 keep all.
+
+    Raises:
+        InputError: the confidence file is missing or unreadable, or has another size than
+            the depth image.
+    """
+    if min_confidence <= 0 or spec.confidence is None:
+        return depth
+    levels = read_confidence(spec, root)
+    if levels.shape != depth.shape:
+        raise InputError.single(
+            rel(spec.confidence, root),
+            f"confidence size {levels.shape[1]}x{levels.shape[0]} does not match depth size "
+            f"{depth.shape[1]}x{depth.shape[0]} ({rel(spec.depth, root)})",
+        )
+    return np.where(levels >= min_confidence, depth, np.float32(0.0))
 
 
 def _read_npy(path: Path, shown: str) -> NDArray[Any]:
@@ -377,6 +448,8 @@ def _finish_frame(
         "pose": spec.pose_source,
         "intrinsics": spec.camera.source,
     }
+    if options.min_confidence > 0 and spec.confidence is not None:
+        files["confidence"] = rel(spec.confidence, root)
     return Frame(
         name=spec.name,
         rgb=np.ascontiguousarray(rgb, dtype=np.uint8),

@@ -107,13 +107,15 @@ def test_unknown_layout_and_bad_paths(tmp_path: Path) -> None:
     (tmp_path / "notes.txt").write_text("hi")
     expected = (
         r"no capture layout recognised in .*: expected one of capture\.json, "
-        r"color/\+depth/\+pose/, results/\+traj\.txt, transforms\.json, frame-\*\.color\.\*"
+        r"color/\+depth/\+pose/, results/\+traj\.txt, transforms\.json, metadata\+rgbd/, "
+        r"metadata\.json\+rgb/\+depth/, "
+        r"keyframes/images\+cameras/, frame-\*\.color\.\*"
     )
     with pytest.raises(InputError, match=expected):
         read_capture(tmp_path)
     with pytest.raises(InputError, match="does not exist"):
         read_capture(tmp_path / "nope")
-    with pytest.raises(InputError, match=r"not a folder or a \.zip"):
+    with pytest.raises(InputError, match=r"not a folder, a \.zip.*or a \.r3d file"):
         read_capture(tmp_path / "notes.txt")
 
 

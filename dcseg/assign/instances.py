@@ -1,0 +1,427 @@
+"""Object instances from clusters: fragments of one object merge, stuff is one region per surface.
+
+Clustering at one scale cuts objects into fragments (a mug's handle, a teddy's head) and leaves
+clusters no view labelled. Objects are built from the classified clusters in three steps, each
+with a documented threshold of :class:`~dcseg.assign.config.AssignConfig`:
+
+1. **Adjacency.** Two clusters touch when at least ``min_contacts`` of their Gaussians have a
+   Gaussian of the other among their ``neighbours`` nearest within the contact radius.
+2. **Unlabelled fragments** take the class their touching labelled neighbours hold most
+   contacts with (weighted with their own pooled class evidence) and join the neighbour of that
+   class they touch most; without a labelled neighbour they are left out of the instance list.
+3. **Merging** (union-find): touching clusters of the same class whose feature centres
+   (cosine >= ``merge_min_cosine``) and class votes over views (cosine >=
+   ``merge_min_vote_cosine``) agree are one object. Stuff classes (walls, floor ...) ignore
+   clusters: every connected surface of the class is one region (a graph over its Gaussians'
+   nearest neighbours, linked where their local normals agree, so that walls meeting at a
+   corner are two surfaces).
+
+Objects and regions with fewer than ``min_instance_gaussians`` Gaussians dissolve; their
+Gaussians, and labelled Gaussians outside every cluster, join the object or region of a near
+Gaussian of their class, or stay out of the instance list (they keep their class).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.cluster.hierarchy import DisjointSet
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from dcseg.assign.config import AssignConfig
+
+
+@dataclass(frozen=True)
+class Instances:
+    """Object instances of N Gaussians made of K clusters (arrays are read-only).
+
+    Attributes:
+        ids: ``[N]`` int64 instance per Gaussian in ``0..M-1``, -1 = none.
+        classes: ``[M]`` int64 class of each instance.
+        scores: ``[M]`` float64 mean assignment score of its clusters' Gaussians (0 for
+            stuff regions and adopted fragments without a vote).
+        of_cluster: ``[K]`` int64 instance holding most of each cluster's Gaussians, -1 = none.
+    """
+
+    ids: NDArray[np.int64]
+    classes: NDArray[np.int64]
+    scores: NDArray[np.float64]
+    of_cluster: NDArray[np.int64]
+
+    def __post_init__(self) -> None:
+        for array in (self.ids, self.classes, self.scores, self.of_cluster):
+            array.flags.writeable = False
+
+    @property
+    def n_instances(self) -> int:
+        return int(self.classes.shape[0])
+
+
+def cluster_contacts(
+    means: NDArray[np.float64], cluster_labels: NDArray[np.int64], radius: float, neighbours: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Touching cluster pairs: ``pairs [P, 2]`` (a < b) and ``counts [P]`` of contacts.
+
+    A contact is a Gaussian of one cluster with a Gaussian of the other among its
+    ``neighbours`` nearest within ``radius``; each Gaussian counts once per other cluster.
+    """
+    rows = np.flatnonzero(cluster_labels >= 0)
+    if len(rows) < 2:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    k = min(neighbours + 1, len(rows))
+    _, idx = cKDTree(means[rows]).query(means[rows], k=k, distance_upper_bound=radius)
+    idx = np.asarray(idx, dtype=np.int64).reshape(len(rows), k)
+    own = cluster_labels[rows]
+    other = np.append(own, -1)[np.minimum(idx, len(rows))]
+    source = np.repeat(np.arange(len(rows)), k).reshape(len(rows), k)
+    hit = (other >= 0) & (other != own[:, None])
+    n = int(own.max()) + 1
+    per_gaussian = np.unique(source[hit] * n + other[hit])  # each Gaussian once per cluster
+    a, b = own[per_gaussian // n], per_gaussian % n
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    keys, counts = np.unique(lo * n + hi, return_counts=True)
+    return np.stack([keys // n, keys % n], axis=1), counts.astype(np.int64)
+
+
+def _cosine(x: NDArray[np.float64], a: NDArray[np.int64], b: NDArray[np.int64]) -> Any:
+    norms = np.linalg.norm(x, axis=1)
+    dots = np.einsum("ij,ij->i", x[a], x[b])
+    return dots / np.maximum(norms[a] * norms[b], 1e-12)
+
+
+def adopt_unlabelled(
+    classes: NDArray[np.int64],
+    pairs: NDArray[np.int64],
+    counts: NDArray[np.int64],
+    pooled_evidence: NDArray[np.float64],
+    cfg: AssignConfig,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Unlabelled clusters take a class from touching labelled ones (step 2).
+
+    Args:
+        classes: ``[K]`` class per cluster, -1 = unlabelled.
+        pairs, counts: from :func:`cluster_contacts`.
+        pooled_evidence: ``[K, C]`` class evidence summed over each cluster's Gaussians.
+        cfg: ``min_contacts`` and ``evidence_weight``.
+
+    Returns:
+        ``classes [K]`` with adopted classes and ``parent [K]``: the labelled cluster each
+        adopted one joins (-1 for the others).
+    """
+    out, parent = classes.copy(), np.full(len(classes), -1, dtype=np.int64)
+    keep = counts >= cfg.min_contacts
+    a, b, c = pairs[keep, 0], pairs[keep, 1], counts[keep]
+    # both directions: (unlabelled, labelled neighbour, contacts)
+    u = np.concatenate([a, b])
+    v = np.concatenate([b, a])
+    w = np.concatenate([c, c]).astype(np.float64)
+    edge = (classes[u] < 0) & (classes[v] >= 0)
+    u, v, w = u[edge], v[edge], w[edge]
+    total = pooled_evidence.sum(axis=1, keepdims=True)
+    own = np.divide(pooled_evidence, total, out=np.zeros_like(pooled_evidence), where=total > 0)
+    for k in np.unique(u):
+        sel = u == k
+        near = np.bincount(classes[v[sel]], weights=w[sel], minlength=own.shape[1])
+        score = near / near.sum() + cfg.evidence_weight * own[k] * (near > 0)
+        cls = int(score.argmax())
+        out[k] = cls
+        same = sel & (classes[v] == cls)
+        parent[k] = int(v[same][w[same].argmax()])
+    return out, parent
+
+
+def merge_clusters(
+    classes: NDArray[np.int64],
+    parent: NDArray[np.int64],
+    pairs: NDArray[np.int64],
+    counts: NDArray[np.int64],
+    centers: NDArray[np.floating[Any]],
+    votes: NDArray[np.float64],
+    stuff: NDArray[np.bool_],
+    cfg: AssignConfig,
+) -> NDArray[np.int64]:
+    """Union-find over clusters (step 3): ``[K]`` root cluster of each labelled cluster, -1 else.
+
+    Adopted clusters join their ``parent``; touching same-class, non-stuff clusters merge when
+    features and votes agree (see the module docstring).
+    """
+    k = len(classes)
+    sets = DisjointSet(range(k))
+    for child in np.flatnonzero(parent >= 0):
+        sets.merge(int(child), int(parent[child]))
+    a, b = pairs[:, 0], pairs[:, 1]
+    same = (counts >= cfg.min_contacts) & (classes[a] >= 0) & (classes[a] == classes[b])
+    same &= ~stuff[np.maximum(classes[a], 0)]
+    a, b = a[same], b[same]
+    features = np.asarray(centers, dtype=np.float64)
+    ok = _cosine(features, a, b) >= cfg.merge_min_cosine
+    ok &= _cosine(votes, a, b) >= cfg.merge_min_vote_cosine
+    for x, y in zip(a[ok], b[ok], strict=True):
+        sets.merge(int(x), int(y))
+    roots = np.array([sets[i] for i in range(k)], dtype=np.int64)
+    return np.where(classes >= 0, roots, -1)
+
+
+def surface_normals(means: NDArray[np.float64], idx: NDArray[np.int64]) -> NDArray[np.float64]:
+    """``[M, 3]`` unit normal of each point's neighbourhood (``idx [M, k]`` into ``means``,
+    missing = ``len(means)``): the direction of least variance of the found neighbours."""
+    found = idx < len(means)
+    pts = means[np.where(found, idx, 0)]
+    w = found[..., None].astype(np.float64)
+    centre = (pts * w).sum(axis=1) / np.maximum(w.sum(axis=1), 1.0)
+    d = (pts - centre[:, None, :]) * w
+    cov = np.einsum("mki,mkj->mij", d, d)
+    _, vectors = np.linalg.eigh(cov)
+    normals: NDArray[np.float64] = vectors[:, :, 0]
+    return normals
+
+
+def _coplanar(
+    pts: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    src: NDArray[np.int64],
+    dst: NDArray[np.int64],
+    min_cos: float,
+    tilt: float,
+) -> NDArray[np.bool_]:
+    """Links on one surface: normals agree (|cos| >= ``min_cos``) and the link lies in both
+    tangent planes (its |cosine| with either normal is at most ``tilt``)."""
+    same = np.abs(np.einsum("ij,ij->i", normals[src], normals[dst])) >= min_cos
+    step = pts[dst] - pts[src]
+    step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-12)
+    flat_src = np.abs(np.einsum("ij,ij->i", normals[src], step)) <= tilt
+    flat_dst = np.abs(np.einsum("ij,ij->i", normals[dst], step)) <= tilt
+    out: NDArray[np.bool_] = same & flat_src & flat_dst
+    return out
+
+
+def stuff_regions(
+    means: NDArray[np.float64],
+    semantic: NDArray[np.int64],
+    stuff: NDArray[np.bool_],
+    radius: float,
+    cfg: AssignConfig,
+) -> NDArray[np.int64]:
+    """``[N]`` connected-surface id of every stuff-class Gaussian (-1 for the others).
+
+    Two Gaussians of the same stuff class are linked when one is among the other's
+    ``neighbours`` nearest within ``radius``, their local surface normals agree (|cosine|
+    >= ``surface_min_normal_cosine``) and the link lies in both tangent planes
+    (:func:`_coplanar`), so walls meeting at a corner are separate surfaces. Regions smaller
+    than ``stuff_min_fraction`` x the largest region of their class (the corner's own sliver of
+    Gaussians) get -1.
+    """
+    out = np.full(len(semantic), -1, dtype=np.int64)
+    rows = np.flatnonzero((semantic >= 0) & stuff[np.maximum(semantic, 0)])
+    if len(rows) == 0:
+        return out
+    k = min(cfg.neighbours + 1, len(rows))
+    pts = means[rows]
+    _, idx = cKDTree(pts).query(pts, k=k, distance_upper_bound=radius)
+    idx = np.asarray(idx, dtype=np.int64).reshape(len(rows), k)
+    normals = surface_normals(pts, idx)
+    found = idx < len(rows)
+    src = np.repeat(np.arange(len(rows)), k).reshape(len(rows), k)[found]
+    dst = idx[found]
+    cls = semantic[rows]
+    keep = (cls[src] == cls[dst]) & _coplanar(
+        pts, normals, src, dst, cfg.surface_min_normal_cosine, cfg.surface_max_tilt
+    )
+    graph = coo_matrix((np.ones(int(keep.sum())), (src[keep], dst[keep])), shape=(len(rows),) * 2)
+    _, component = connected_components(graph, directed=False)
+    sizes = np.bincount(component)
+    largest = np.zeros(int(cls.max()) + 1, dtype=np.int64)
+    np.maximum.at(largest, cls, sizes[component])
+    big = sizes[component] >= cfg.stuff_min_fraction * largest[cls]
+    out[rows] = np.where(big, component, -1)
+    return out
+
+
+def _attach_loose(
+    means: NDArray[np.float64],
+    semantic: NDArray[np.int64],
+    group: NDArray[np.int64],
+    radius: float,
+    neighbours: int,
+) -> NDArray[np.int64]:
+    """Labelled Gaussians without a group take the group of a near same-class Gaussian."""
+    out = group.copy()
+    loose = np.flatnonzero((semantic >= 0) & (group < 0))
+    placed = np.flatnonzero(group >= 0)
+    if len(loose) == 0 or len(placed) == 0:
+        return out
+    k = min(neighbours, len(placed))
+    _, idx = cKDTree(means[placed]).query(means[loose], k=k, distance_upper_bound=radius)
+    idx = np.asarray(idx, dtype=np.int64).reshape(len(loose), k)
+    found = idx < len(placed)
+    cand = placed[np.where(found, idx, 0)]
+    match = found & (semantic[cand] == semantic[loose, None])
+    first = match.argmax(axis=1)
+    hit = match[np.arange(len(loose)), first]
+    out[loose[hit]] = group[cand[hit, first[hit]]]
+    return out
+
+
+@dataclass(frozen=True)
+class Fragments:
+    """Clusters after unlabelled ones adopted a class (step 2), and their contacts.
+
+    Attributes:
+        classes: ``[K]`` class per cluster, -1 = unlabelled and without a labelled neighbour.
+        parent: ``[K]`` the labelled cluster each adopted one joins, -1 for the others.
+        pairs, counts: touching cluster pairs and their contacts (:func:`cluster_contacts`).
+        semantic: ``[N]`` class per Gaussian, adopted classes filled in.
+    """
+
+    classes: NDArray[np.int64]
+    parent: NDArray[np.int64]
+    pairs: NDArray[np.int64]
+    counts: NDArray[np.int64]
+    semantic: NDArray[np.int64]
+
+
+def adopt_fragments(
+    means: NDArray[np.floating[Any]],
+    cluster_labels: NDArray[np.int64],
+    semantic: NDArray[np.int64],
+    evidence: NDArray[np.float64],
+    radius: float,
+    cfg: AssignConfig,
+) -> Fragments:
+    """Steps 1-2: cluster contacts, and unlabelled clusters adopting their neighbour's class.
+
+    Args:
+        means: ``[N, 3]`` Gaussian centres.
+        cluster_labels: ``[N]`` cluster per Gaussian, -1 = noise.
+        semantic: ``[N]`` class per Gaussian (its cluster's), -1 = none.
+        evidence: ``[N, C]`` class evidence per Gaussian.
+        radius: contact radius (world units).
+        cfg: ``neighbours``, ``min_contacts``, ``evidence_weight``.
+    """
+    xyz = np.asarray(means, dtype=np.float64).reshape(-1, 3)
+    labels = np.asarray(cluster_labels, dtype=np.int64)
+    k = int(labels.max(initial=-1)) + 1
+    classes = _cluster_classes(labels, semantic, k)
+    pairs, counts = cluster_contacts(xyz, labels, radius, cfg.neighbours)
+    classes, parent = adopt_unlabelled(classes, pairs, counts, _pooled(labels, evidence, k), cfg)
+    out = np.asarray(semantic, dtype=np.int64).copy()
+    fill = (labels >= 0) & (out < 0)
+    out[fill] = classes[labels[fill]]
+    return Fragments(classes, parent, pairs, counts, out)
+
+
+def object_instances(
+    means: NDArray[np.floating[Any]],
+    cluster_labels: NDArray[np.int64],
+    semantic: NDArray[np.int64],
+    fragments: Fragments,
+    centers: NDArray[np.floating[Any]],
+    votes: NDArray[np.float64],
+    cluster_scores: NDArray[np.float64],
+    stuff_ids: Sequence[int],
+    radius: float,
+    cfg: AssignConfig,
+) -> Instances:
+    """Step 3: objects and stuff regions (see the module docstring).
+
+    Args:
+        means: ``[N, 3]`` Gaussian centres.
+        cluster_labels: ``[N]`` cluster per Gaussian, -1 = noise.
+        semantic: ``[N]`` final class per Gaussian (after completion), -1 = none.
+        fragments: from :func:`adopt_fragments`.
+        centers: ``[K, D]`` unit feature centres of the clusters.
+        votes: ``[K, C]`` the assignment's summed IoU votes.
+        cluster_scores: ``[K]`` the assignment's scores.
+        stuff_ids: class indices that are stuff.
+        radius: contact radius (world units).
+        cfg: the thresholds.
+    """
+    xyz = np.asarray(means, dtype=np.float64).reshape(-1, 3)
+    labels = np.asarray(cluster_labels, dtype=np.int64)
+    k, n_classes = votes.shape
+    stuff = np.zeros(max(n_classes, int(semantic.max(initial=-1)) + 1), dtype=bool)
+    stuff[[s for s in stuff_ids if 0 <= s < len(stuff)]] = True
+    f = fragments
+    roots = merge_clusters(f.classes, f.parent, f.pairs, f.counts, centers, votes, stuff, cfg)
+    group = np.where(labels >= 0, roots[np.maximum(labels, 0)], -1) if k else labels.copy()
+    thing = (semantic >= 0) & ~stuff[np.maximum(semantic, 0)]
+    own = (labels >= 0) & (semantic == (f.classes[np.maximum(labels, 0)] if k else -2))
+    group = np.where(thing & own, group, -1)
+    regions = stuff_regions(xyz, semantic, stuff, radius, cfg)
+    group = np.where(regions >= 0, k + regions, group)
+    group = _drop_small(group, cfg.min_instance_gaussians)
+    group = _attach_loose(xyz, semantic, group, radius, cfg.neighbours)
+    scores = cluster_scores[np.maximum(labels, 0)] if k else np.zeros(len(labels))
+    scores = np.where(labels >= 0, scores, 0.0)
+    return _number(group, semantic, scores, labels, k, cfg.min_instance_gaussians)
+
+
+def _drop_small(group: NDArray[np.int64], min_size: int) -> NDArray[np.int64]:
+    """Groups with fewer than ``min_size`` Gaussians dissolve (-1)."""
+    inside = group >= 0
+    _, inverse, sizes = np.unique(group[inside], return_inverse=True, return_counts=True)
+    out = group.copy()
+    out[inside] = np.where(sizes[inverse] >= min_size, group[inside], -1)
+    return out
+
+
+def _cluster_classes(labels: NDArray[np.int64], semantic: NDArray[np.int64], k: int) -> Any:
+    """Each cluster's class: the class its labelled members carry most (-1 if none)."""
+    out = np.full(k, -1, dtype=np.int64)
+    member = (labels >= 0) & (semantic >= 0)
+    if member.any():
+        c = int(semantic.max()) + 1
+        table = np.bincount(labels[member] * c + semantic[member], minlength=k * c)
+        table = table.reshape(k, c)
+        out = np.where(table.sum(axis=1) > 0, table.argmax(axis=1), -1)
+    return out
+
+
+def _pooled(labels: NDArray[np.int64], evidence: NDArray[np.float64], k: int) -> Any:
+    out = np.zeros((k, evidence.shape[1]))
+    member = labels >= 0
+    np.add.at(out, labels[member], evidence[member])
+    return out
+
+
+def _number(
+    group: NDArray[np.int64],
+    semantic: NDArray[np.int64],
+    scores: NDArray[np.float64],
+    labels: NDArray[np.int64],
+    k: int,
+    min_size: int,
+) -> Instances:
+    """Instances ``0..M-1`` from group keys; groups below ``min_size`` Gaussians are left out.
+
+    An instance's class is the class most of its Gaussians carry."""
+    ids = np.full(len(group), -1, dtype=np.int64)
+    inside = group >= 0
+    _, inverse, sizes = np.unique(group[inside], return_inverse=True, return_counts=True)
+    kept = sizes >= min_size
+    ids[inside] = np.where(kept, np.cumsum(kept) - 1, -1)[inverse]
+    m = int(kept.sum())
+    inside = ids >= 0
+    c = int(semantic.max(initial=-1)) + 1
+    table = np.bincount(ids[inside] * c + semantic[inside], minlength=m * c).reshape(m, c)
+    classes = table.argmax(axis=1).astype(np.int64) if c else np.zeros(m, dtype=np.int64)
+    size = np.bincount(ids[inside], minlength=m)
+    total = np.bincount(ids[inside], weights=scores[inside], minlength=m)
+    mean_score = np.divide(total, size, out=np.zeros(m), where=size > 0)
+    return Instances(ids, classes, mean_score, _of_cluster(ids, labels, k))
+
+
+def _of_cluster(ids: NDArray[np.int64], labels: NDArray[np.int64], k: int) -> Any:
+    out = np.full(k, -1, dtype=np.int64)
+    both = (ids >= 0) & (labels >= 0)
+    if both.any():
+        m = int(ids.max()) + 1
+        table = np.bincount(labels[both] * m + ids[both], minlength=k * m).reshape(k, m)
+        out = np.where(table.sum(axis=1) > 0, table.argmax(axis=1), -1)
+    return out

@@ -1,0 +1,168 @@
+"""Object instances from clusters: merge fragments, adopt unlabelled ones, split stuff surfaces."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from dcseg.assign.config import AssignConfig
+from dcseg.assign.instances import (
+    Instances,
+    adopt_fragments,
+    cluster_contacts,
+    object_instances,
+)
+
+SPACING = 0.02
+RADIUS = 3 * SPACING
+WALL, FLOOR, DUCK, MUG = 0, 1, 2, 3
+N_CLASSES = 4
+STUFF = (WALL, FLOOR)
+
+
+def patch(x0: float, x1: float, y0: float, y1: float, z: float = 0.0) -> NDArray[np.float64]:
+    """A flat grid of Gaussian centres at ``SPACING`` (a surface)."""
+    xs = np.arange(x0, x1, SPACING)
+    ys = np.arange(y0, y1, SPACING)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    return np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], axis=1)
+
+
+def unit(*values: float) -> NDArray[np.float32]:
+    v = np.array(values, dtype=np.float32)
+    return v / np.linalg.norm(v)
+
+
+def build(
+    parts: list[tuple[NDArray[np.float64], int]],
+    classes: list[int],
+    centers: list[NDArray[np.float32]],
+    cfg: AssignConfig | None = None,
+) -> tuple[Instances, NDArray[np.int64], NDArray[np.int64]]:
+    """Objects of clusters ``parts[k] = (points, cluster)`` with cluster classes ``classes``.
+
+    Votes: one view per cluster for its class (unlabelled clusters: none); no class evidence.
+    Returns the instances, the Gaussians' clusters and their final classes.
+    """
+    cfg = cfg or AssignConfig()
+    means = np.concatenate([p for p, _ in parts])
+    labels = np.concatenate([np.full(len(p), k, dtype=np.int64) for p, k in parts])
+    table = np.asarray(classes, dtype=np.int64)
+    semantic = np.where(labels >= 0, table[np.maximum(labels, 0)], -1)
+    votes = np.zeros((len(classes), N_CLASSES))
+    for k, c in enumerate(classes):
+        if c >= 0:
+            votes[k, c] = 1.0
+    evidence = np.zeros((len(means), N_CLASSES))
+    fragments = adopt_fragments(means, labels, semantic, evidence, RADIUS, cfg)
+    scores = (table >= 0).astype(np.float64)
+    instances = object_instances(
+        means, labels, fragments.semantic, fragments, np.stack(centers), votes, scores,
+        STUFF, RADIUS, cfg,
+    )  # fmt: skip
+    return instances, labels, fragments.semantic
+
+
+def test_two_fragments_of_one_object_merge() -> None:
+    """Two touching duck clusters with similar features are one object; with merging off
+    (threshold above any cosine) they stay two."""
+    left, right = patch(0, 0.3, 0, 0.3), patch(0.3, 0.6, 0, 0.3)
+    parts = [(left, 0), (right, 1)]
+    centers = [unit(1, 0.2, 0), unit(1, 0, 0.2)]
+    merged, labels, _ = build(parts, [DUCK, DUCK], centers)
+    assert merged.n_instances == 1
+    assert np.all(merged.ids == 0) and merged.classes.tolist() == [DUCK]
+    assert merged.of_cluster.tolist() == [0, 0]
+    apart, _, _ = build(parts, [DUCK, DUCK], centers, AssignConfig(merge_min_cosine=1.0))
+    assert apart.n_instances == 2
+
+
+def test_touching_objects_of_different_class_or_features_stay_apart() -> None:
+    left, right = patch(0, 0.3, 0, 0.3), patch(0.3, 0.6, 0, 0.3)
+    same = [unit(1, 0, 0), unit(1, 0, 0)]
+    by_class, _, _ = build([(left, 0), (right, 1)], [DUCK, MUG], same)
+    assert by_class.n_instances == 2 and sorted(by_class.classes.tolist()) == [DUCK, MUG]
+    # two mugs side by side: same class, touching, but their features differ
+    by_features, _, _ = build([(left, 0), (right, 1)], [MUG, MUG], [unit(1, 0, 0), unit(0, 1, 0)])
+    assert by_features.n_instances == 2
+
+
+def test_far_fragments_of_one_class_do_not_merge() -> None:
+    near, far = patch(0, 0.3, 0, 0.3), patch(2, 2.3, 0, 0.3)
+    result, _, _ = build([(near, 0), (far, 1)], [DUCK, DUCK], [unit(1, 0, 0)] * 2)
+    assert result.n_instances == 2
+
+
+def test_an_unlabelled_fragment_joins_its_neighbour_and_a_lonely_one_is_dropped() -> None:
+    body, head, lonely = patch(0, 0.3, 0, 0.3), patch(0.3, 0.4, 0, 0.3), patch(3, 3.3, 0, 0.3)
+    parts = [(body, 0), (head, 1), (lonely, 2)]
+    centers = [unit(1, 0, 0), unit(0, 1, 0), unit(0, 0, 1)]  # features unlike: adoption ignores
+    result, labels, semantic = build(parts, [DUCK, -1, -1], centers)
+    assert result.n_instances == 1 and result.classes.tolist() == [DUCK]
+    assert np.all(result.ids[labels <= 1] == 0)
+    assert np.all(semantic[labels == 1] == DUCK)
+    assert np.all(result.ids[labels == 2] == -1) and np.all(semantic[labels == 2] == -1)
+    assert result.of_cluster.tolist() == [0, 0, -1]
+
+
+def test_stuff_is_one_region_per_connected_surface() -> None:
+    """A floor cluster covering two separate patches is two regions; a wall cut into three
+    clusters with unlike features is one."""
+    floor_a, floor_b = patch(0, 0.5, 0, 0.5), patch(1.5, 2.0, 0, 0.5)
+    wall = [patch(x, x + 0.3, 2, 2.3) for x in (0.0, 0.3, 0.6)]
+    parts = [(floor_a, 0), (floor_b, 0), (wall[0], 1), (wall[1], 2), (wall[2], 3)]
+    centers = [unit(1, 0, 0), unit(0, 1, 0), unit(0, 0, 1), unit(1, 1, 0)]
+    result, labels, _ = build(parts, [FLOOR, WALL, WALL, WALL], centers)
+    assert sorted(result.classes.tolist()) == [WALL, FLOOR, FLOOR]
+    floor_ids = result.ids[: len(floor_a)], result.ids[len(floor_a) : len(floor_a) + len(floor_b)]
+    assert len(set(floor_ids[0])) == 1 and len(set(floor_ids[1])) == 1
+    assert floor_ids[0][0] != floor_ids[1][0]
+    assert len(set(result.ids[labels >= 1].tolist())) == 1
+
+
+def test_small_instances_are_left_out() -> None:
+    crumb = patch(0, 0.06, 0, 0.06)  # 9 Gaussians
+    result, _, semantic = build([(crumb, 0)], [DUCK], [unit(1, 0, 0)])
+    assert result.n_instances == 0 and np.all(result.ids == -1)
+    assert np.all(semantic == DUCK)
+    kept, _, _ = build(
+        [(crumb, 0)], [DUCK], [unit(1, 0, 0)], AssignConfig(min_instance_gaussians=5)
+    )
+    assert kept.n_instances == 1
+
+
+def test_contacts_count_each_gaussian_once_per_other_cluster() -> None:
+    means = np.array([[0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [5, 0, 0]], dtype=np.float64)
+    labels = np.array([0, 1, 1, 2])
+    pairs, counts = cluster_contacts(means, labels, 0.015, 3)
+    assert pairs.tolist() == [[0, 1]] and counts.tolist() == [2]  # Gaussian 0 and Gaussian 1
+
+
+def test_thresholds_are_validated() -> None:
+    with pytest.raises(ValueError, match="merge_min_cosine"):
+        AssignConfig(merge_min_cosine=2.0)
+    with pytest.raises(ValueError, match="contact_factor"):
+        replace(AssignConfig(), contact_factor=0.0)
+    with pytest.raises(ValueError, match="min_instance_gaussians"):
+        AssignConfig(min_instance_gaussians=-1)
+
+
+def test_walls_meeting_at_a_corner_are_two_surfaces() -> None:
+    """One wall cluster bent round a corner: two regions (their normals differ); with the
+    surface tests off they are one."""
+    flat = patch(0, 0.6, 0, 0.6)
+    wall_x = np.stack([flat[:, 0], np.zeros(len(flat)), flat[:, 1]], axis=1)  # y = 0 plane
+    wall_y = np.stack([np.zeros(len(flat)), flat[:, 0] + SPACING, flat[:, 1]], axis=1)  # x = 0
+    parts = [(wall_x, 0), (wall_y, 0)]
+    split, _, _ = build(parts, [WALL], [unit(1, 0, 0)])
+    assert split.n_instances == 2 and split.classes.tolist() == [WALL, WALL]
+    away = flat[:, 0] > 0.1  # the corner's own Gaussians may go either way
+    first, second = split.ids[: len(flat)][away], split.ids[len(flat) :][away]
+    assert len(set(first.tolist())) == 1 and len(set(second.tolist())) == 1
+    assert first[0] != second[0]
+    off = AssignConfig(surface_min_normal_cosine=0.0, surface_max_tilt=1.0)
+    one, _, _ = build(parts, [WALL], [unit(1, 0, 0)], off)
+    assert one.n_instances == 1

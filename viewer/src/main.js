@@ -70,7 +70,7 @@ class Viewer {
 
   start() {
     this.resize();
-    window.addEventListener("resize", () => this.resize());
+    new ResizeObserver(() => this.resize()).observe(this.canvas);
     this.setUp(this.config.up ?? "+z");
     this.bindPointer();
     this.bindPanel();
@@ -193,9 +193,9 @@ async function main() {
 }
 
 // For tests and scripting: `ready` resolves to the Viewer; `loaded` turns true with it.
-const hook = { loaded: false, error: null };
+const hook = { loaded: false, error: null, viewer: null };
 hook.ready = main().then(
-  (viewer) => { hook.loaded = true; return viewer; },
+  (viewer) => { hook.viewer = viewer; hook.loaded = true; return viewer; },
   (error) => { hook.error = String(error.message ?? error); showError(hook.error); throw error; },
 );
 window.dcsegViewer = hook;

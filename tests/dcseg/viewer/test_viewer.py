@@ -58,6 +58,12 @@ def test_loads_the_scene_and_lists_present_classes_and_objects(page, labelled_ru
 
 
 def test_click_on_projected_centre_selects_that_object(page, labelled_run):
+    page.set_viewport_size({"width": 900, "height": 500})  # the camera follows the canvas
+    page.wait_for_function(
+        "() => { const v = window.dcsegViewer.viewer; const c = v.canvas; "
+        "return c.clientHeight === 500 && v.camera.aspect === c.clientWidth / 500; }",
+        timeout=5000,
+    )
     for instance_id, label in ((BOX, "box"), (BALL, "ball")):
         page.mouse.click(*pixel_of(page, labelled_run, instance_id))
         assert selected(page) == instance_id

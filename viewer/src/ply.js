@@ -73,11 +73,17 @@ export function hasProperty(ply, prop) {
   return ply.props.has(prop);
 }
 
-/** A PLY of the given vertex rows, byte for byte as in the source (same properties). */
+/** A PLY of the given vertex rows, byte for byte as in the source (same properties; other
+ * elements are left out). */
 export function subsetPly(ply, indices) {
   const header = [];
+  let element = null;
   for (const line of ply.headerLines) {
-    header.push(line.startsWith("element vertex ") ? `element vertex ${indices.length}` : line);
+    if (line.startsWith("element ")) element = line.split(/\s+/)[1];
+    if (element === null) header.push(line);
+    else if (element === "vertex") {
+      header.push(line.startsWith("element vertex ") ? `element vertex ${indices.length}` : line);
+    }
   }
   const text = new TextEncoder().encode(`${header.join("\n")}\n${END}`);
   const out = new Uint8Array(text.length + indices.length * ply.stride);

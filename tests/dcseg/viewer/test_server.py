@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import httpx
@@ -97,3 +100,22 @@ def test_dcseg_view_rejects_a_bad_port(labelled_run: LabelledRun, capsys):
         main(["view", str(labelled_run.folder), "--port", "70000"])
     assert raised.value.code == 2
     assert "port must be in 0..65535, got 70000" in capsys.readouterr().err
+
+
+def test_dcseg_view_serves_until_interrupted(labelled_run: LabelledRun):
+    command = [sys.executable, "-m", "dcseg", "view", str(labelled_run.folder), "--port", "0"]
+    with subprocess.Popen(command, stdout=subprocess.PIPE, text=True) as process:
+        try:
+            assert process.stdout is not None
+            line = process.stdout.readline()
+            pattern = r"serving (.+) at (http://127\.0\.0\.1:\d+/) \(Ctrl-C to stop\)\n"
+            found = re.fullmatch(pattern, line)
+            assert found is not None, line
+            assert found.group(1) == str(labelled_run.folder)
+            labels = httpx.get(found.group(2) + "run/labels.json", timeout=10).json()
+            assert [entry["name"] for entry in labels["labels"]] == ["wall", "floor", "box", "ball"]
+            process.send_signal(signal.SIGINT)
+            assert process.wait(10) == 0
+        finally:
+            if process.poll() is None:
+                process.kill()

@@ -11,7 +11,8 @@ export OMP_WAIT_POLICY=PASSIVE  # torch and numba thread pools must not spin aga
 # can (root with apt-get), else that test skips saying so.
 if ! command -v chromium >/dev/null && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     echo "== apt-get install chromium"
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } \
+        || echo "chromium could not be installed: the viewer tests will skip" >&2
 fi
 
 echo "== ruff"; ruff check . && ruff format --check .

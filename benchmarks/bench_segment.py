@@ -182,9 +182,10 @@ def score_segmentation(
 ) -> dict[str, Any]:
     """Segment the saved state with the current code and defaults, export, score the exports."""
     cfg = current_config(saved, cluster_seed)
-    start = time.perf_counter()
-    seg = segment_scene(saved.trained, saved.semantic, len(saved.vocabulary), cfg)
-    seconds = time.perf_counter() - start
+    start, cpu = time.perf_counter(), time.process_time()
+    names = saved.vocabulary.names
+    seg = segment_scene(saved.trained, saved.semantic, len(names), cfg, class_names=names)
+    seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
     out = Path(tempfile.mkdtemp(dir=tmp))
     write_outputs(out, saved.trained, seg, saved.vocabulary, [])
     views = saved.trained.views
@@ -195,6 +196,7 @@ def score_segmentation(
     return {
         "cluster_seed": cluster_seed,
         "segment_seconds": round(seconds, 2),
+        "segment_cpu_seconds": round(cpu, 2),
         "nearest": scorer.semantic(scorer.nearest(labels.semantic_ids)),
         "projection": scorer.semantic(
             scorer.projection([labels.label_maps[v.name] for v in views], views)
@@ -237,6 +239,7 @@ METRICS: dict[str, tuple[str, ...]] = {
     "instance_mcov": ("instances", "mcov"),
     "count_ratio": ("instances", "count_ratio"),
     "segment_seconds": ("segment_seconds",),
+    "segment_cpu_seconds": ("segment_cpu_seconds",),
 }
 """Summary name -> path into a row's baselines or one of its segmentations."""
 

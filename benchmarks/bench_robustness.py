@@ -58,7 +58,13 @@ def score_run(run: Path, scene: Path, cluster_seeds: list[int]) -> dict[str, Any
     scores, naive = [], 0.0
     for seed in cluster_seeds:
         c = replace(cfg, cluster=replace(cfg.cluster, seed=seed))
-        seg = segment_scene(saved.trained, saved.semantic, len(saved.vocabulary), c)
+        seg = segment_scene(
+            saved.trained,
+            saved.semantic,
+            len(saved.vocabulary),
+            c,
+            class_names=saved.vocabulary.names,
+        )
         m = evaluate_segmentation(
             saved.trained, seg.labels(), saved.semantic, gt, saved.vocabulary, c
         )

@@ -31,7 +31,7 @@ from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
-from dcseg.segment import class_agreement, cluster_map, label_map
+from dcseg.segment import class_agreement, class_evidence, cluster_map, label_map
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
 
 Progress = Callable[[str, float, str], None]
@@ -250,9 +250,8 @@ def _objects(
     if (not a.objects and not a.complete) or radius <= 0:
         return _per_cluster(labels, assignment), semantic_ids
     views = [v for v in trained.views if v.name in semantic]
-    evidence = _class_evidence(
-        _Blends(views), [semantic[v.name].classes for v in views], n_classes, len(means)
-    )
+    maps = [semantic[v.name].classes for v in views]
+    evidence = class_evidence(_Blends(views), maps, len(means), n_classes)
     fragments = adopt_fragments(means, labels, semantic_ids, evidence, radius, a)
     ids = fragments.semantic if a.objects else semantic_ids
     if a.complete:
@@ -276,22 +275,6 @@ def _per_cluster(labels: NDArray[np.int64], assignment: Assignment) -> Instances
     return Instances(
         labels.copy(), assignment.labels.copy(), assignment.scores.copy(), np.arange(k)
     )
-
-
-def _class_evidence(
-    blends: Sequence[BlendWeights], class_maps: Sequence[NDArray[Any]], n_classes: int, n: int
-) -> NDArray[np.float64]:
-    """``[N, C]`` blending weight of every Gaussian summed per class over all views."""
-    import torch
-
-    out = torch.zeros(n * max(n_classes, 1), dtype=torch.float64)
-    for blend, class_map in zip(blends, class_maps, strict=True):
-        pixel = torch.from_numpy(np.asarray(class_map, dtype=np.int64).reshape(-1))
-        cls = pixel[blend.rows().cpu()]
-        seen = cls >= 0
-        ids = blend.ids.cpu().long()[seen]
-        out.index_add_(0, ids * n_classes + cls[seen], blend.weights.cpu().double()[seen])
-    return out.reshape(n, max(n_classes, 1)).numpy()[:, :n_classes]
 
 
 def _cluster_maps(

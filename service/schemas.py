@@ -110,6 +110,11 @@ class ArtifactPublic(BaseModel):
     size: int
     sha256: str
     url: str
+    """The download through the API (``Range``, ``ETag``; needs the API key)."""
+    download_url: str | None = None
+    """Object storage only: a presigned URL that downloads the file straight from the store,
+    without the API key, until ``download_url_expires_at``; None with local storage."""
+    download_url_expires_at: datetime | None = None
 
 
 class ArtifactsPublic(BaseModel):
@@ -149,7 +154,7 @@ class InstancePublic(BaseModel):
     size: list[float]
     """Extent of the axis-aligned box per world axis (``bbox_max - bbox_min``, metres)."""
     n_views: int | None = None
-    """Visibility: the number of views that voted for the object's class."""
+    """Visibility: the number of views in which the object covers at least one pixel."""
     links: InstanceLinks
 
 

@@ -50,6 +50,16 @@ class AssignConfig:
         stuff_classes: class names that are surfaces, not objects: each connected surface of
             such a class is one region, whatever its clusters (names absent from the
             vocabulary are ignored).
+        surface_min_normal_cosine: two neighbouring stuff Gaussians are on one surface when
+            the |cosine| of their local normals (PCA of their neighbourhood) is at least this
+            (0.8 = 37 degrees) ...
+        surface_max_tilt: ... and the link between them lies in both tangent planes: the
+            |cosine| of the link with either normal is at most this (0.3 = 17 degrees). The
+            Gaussians on a corner have normals between the two walls' and pass the normal test
+            with both; the tilt test cuts them off, so walls meeting at a corner are two regions.
+        stuff_min_fraction: a stuff region smaller than this fraction of its class's largest
+            region (a corner's sliver of Gaussians between two walls) is no region: its
+            Gaussians join a near region of their class.
         min_instance_gaussians: objects and stuff regions with fewer Gaussians are left out of
             the instance list (their Gaussians keep their class, instance -1).
         complete: label completion (:mod:`dcseg.assign.completion`): unlabelled Gaussians next
@@ -71,6 +81,9 @@ class AssignConfig:
     merge_min_cosine: float = 0.5
     merge_min_vote_cosine: float = 0.5
     stuff_classes: tuple[str, ...] = ("wall", "floor", "ceiling")
+    surface_min_normal_cosine: float = 0.8
+    surface_max_tilt: float = 0.3
+    stuff_min_fraction: float = 0.05
     min_instance_gaussians: int = 20
     complete: bool = True
     completion_rounds: int = 3
@@ -107,8 +120,12 @@ class AssignConfig:
         for name, cos in (
             ("merge_min_cosine", self.merge_min_cosine),
             ("merge_min_vote_cosine", self.merge_min_vote_cosine),
+            ("surface_min_normal_cosine", self.surface_min_normal_cosine),
+            ("surface_max_tilt", self.surface_max_tilt),
         ):
             if not -1.0 <= cos <= 1.0:
                 raise ValueError(f"{name} must be in [-1, 1], got {cos}")
+        if not 0.0 <= self.stuff_min_fraction <= 1.0:
+            raise ValueError(f"stuff_min_fraction must be in [0, 1], got {self.stuff_min_fraction}")
         if self.evidence_weight < 0:
             raise ValueError(f"evidence_weight must be >= 0, got {self.evidence_weight}")

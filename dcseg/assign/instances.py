@@ -12,10 +12,13 @@ with a documented threshold of :class:`~dcseg.assign.config.AssignConfig`:
 3. **Merging** (union-find): touching clusters of the same class whose feature centres
    (cosine >= ``merge_min_cosine``) and class votes over views (cosine >=
    ``merge_min_vote_cosine``) agree are one object. Stuff classes (walls, floor ...) ignore
-   clusters: every connected surface of the class (radius graph over its Gaussians) is one
-   region.
+   clusters: every connected surface of the class is one region (a graph over its Gaussians'
+   nearest neighbours, linked where their local normals agree, so that walls meeting at a
+   corner are two surfaces).
 
-Objects and regions with fewer than ``min_instance_gaussians`` Gaussians are left out.
+Objects and regions with fewer than ``min_instance_gaussians`` Gaussians dissolve; their
+Gaussians, and labelled Gaussians outside every cluster, join the object or region of a near
+Gaussian of their class, or stay out of the instance list (they keep their class).
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.cluster.hierarchy import DisjointSet
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from dcseg.assign.config import AssignConfig
@@ -163,16 +168,79 @@ def merge_clusters(
     return np.where(classes >= 0, roots, -1)
 
 
-def stuff_regions(
-    means: NDArray[np.float64], semantic: NDArray[np.int64], stuff: NDArray[np.bool_], radius: float
-) -> NDArray[np.int64]:
-    """``[N]`` connected-surface id of every stuff-class Gaussian (-1 for the others)."""
-    from dcseg.cluster.components import cluster_components  # numba: not in the API image
+def surface_normals(means: NDArray[np.float64], idx: NDArray[np.int64]) -> NDArray[np.float64]:
+    """``[M, 3]`` unit normal of each point's neighbourhood (``idx [M, k]`` into ``means``,
+    missing = ``len(means)``): the direction of least variance of the found neighbours."""
+    found = idx < len(means)
+    pts = means[np.where(found, idx, 0)]
+    w = found[..., None].astype(np.float64)
+    centre = (pts * w).sum(axis=1) / np.maximum(w.sum(axis=1), 1.0)
+    d = (pts - centre[:, None, :]) * w
+    cov = np.einsum("mki,mkj->mij", d, d)
+    _, vectors = np.linalg.eigh(cov)
+    normals: NDArray[np.float64] = vectors[:, :, 0]
+    return normals
 
-    is_stuff = (semantic >= 0) & stuff[np.maximum(semantic, 0)]
-    if not is_stuff.any():
-        return np.full(len(semantic), -1, dtype=np.int64)
-    return cluster_components(means, np.where(is_stuff, semantic, -1), radius)
+
+def _coplanar(
+    pts: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    src: NDArray[np.int64],
+    dst: NDArray[np.int64],
+    min_cos: float,
+    tilt: float,
+) -> NDArray[np.bool_]:
+    """Links on one surface: normals agree (|cos| >= ``min_cos``) and the link lies in both
+    tangent planes (its |cosine| with either normal is at most ``tilt``)."""
+    same = np.abs(np.einsum("ij,ij->i", normals[src], normals[dst])) >= min_cos
+    step = pts[dst] - pts[src]
+    step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-12)
+    flat_src = np.abs(np.einsum("ij,ij->i", normals[src], step)) <= tilt
+    flat_dst = np.abs(np.einsum("ij,ij->i", normals[dst], step)) <= tilt
+    out: NDArray[np.bool_] = same & flat_src & flat_dst
+    return out
+
+
+def stuff_regions(
+    means: NDArray[np.float64],
+    semantic: NDArray[np.int64],
+    stuff: NDArray[np.bool_],
+    radius: float,
+    cfg: AssignConfig,
+) -> NDArray[np.int64]:
+    """``[N]`` connected-surface id of every stuff-class Gaussian (-1 for the others).
+
+    Two Gaussians of the same stuff class are linked when one is among the other's
+    ``neighbours`` nearest within ``radius``, their local surface normals agree (|cosine|
+    >= ``surface_min_normal_cosine``) and the link lies in both tangent planes
+    (:func:`_coplanar`), so walls meeting at a corner are separate surfaces. Regions smaller
+    than ``stuff_min_fraction`` x the largest region of their class (the corner's own sliver of
+    Gaussians) get -1.
+    """
+    out = np.full(len(semantic), -1, dtype=np.int64)
+    rows = np.flatnonzero((semantic >= 0) & stuff[np.maximum(semantic, 0)])
+    if len(rows) == 0:
+        return out
+    k = min(cfg.neighbours + 1, len(rows))
+    pts = means[rows]
+    _, idx = cKDTree(pts).query(pts, k=k, distance_upper_bound=radius)
+    idx = np.asarray(idx, dtype=np.int64).reshape(len(rows), k)
+    normals = surface_normals(pts, idx)
+    found = idx < len(rows)
+    src = np.repeat(np.arange(len(rows)), k).reshape(len(rows), k)[found]
+    dst = idx[found]
+    cls = semantic[rows]
+    keep = (cls[src] == cls[dst]) & _coplanar(
+        pts, normals, src, dst, cfg.surface_min_normal_cosine, cfg.surface_max_tilt
+    )
+    graph = coo_matrix((np.ones(int(keep.sum())), (src[keep], dst[keep])), shape=(len(rows),) * 2)
+    _, component = connected_components(graph, directed=False)
+    sizes = np.bincount(component)
+    largest = np.zeros(int(cls.max()) + 1, dtype=np.int64)
+    np.maximum.at(largest, cls, sizes[component])
+    big = sizes[component] >= cfg.stuff_min_fraction * largest[cls]
+    out[rows] = np.where(big, component, -1)
+    return out
 
 
 def _attach_loose(
@@ -285,12 +353,22 @@ def object_instances(
     thing = (semantic >= 0) & ~stuff[np.maximum(semantic, 0)]
     own = (labels >= 0) & (semantic == (f.classes[np.maximum(labels, 0)] if k else -2))
     group = np.where(thing & own, group, -1)
-    group = _attach_loose(xyz, np.where(thing, semantic, -1), group, radius, cfg.neighbours)
-    regions = stuff_regions(xyz, semantic, stuff, radius)
+    regions = stuff_regions(xyz, semantic, stuff, radius, cfg)
     group = np.where(regions >= 0, k + regions, group)
+    group = _drop_small(group, cfg.min_instance_gaussians)
+    group = _attach_loose(xyz, semantic, group, radius, cfg.neighbours)
     scores = cluster_scores[np.maximum(labels, 0)] if k else np.zeros(len(labels))
     scores = np.where(labels >= 0, scores, 0.0)
     return _number(group, semantic, scores, labels, k, cfg.min_instance_gaussians)
+
+
+def _drop_small(group: NDArray[np.int64], min_size: int) -> NDArray[np.int64]:
+    """Groups with fewer than ``min_size`` Gaussians dissolve (-1)."""
+    inside = group >= 0
+    _, inverse, sizes = np.unique(group[inside], return_inverse=True, return_counts=True)
+    out = group.copy()
+    out[inside] = np.where(sizes[inverse] >= min_size, group[inside], -1)
+    return out
 
 
 def _cluster_classes(labels: NDArray[np.int64], semantic: NDArray[np.int64], k: int) -> Any:

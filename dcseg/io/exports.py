@@ -52,14 +52,14 @@ def instance_records(
     cluster_views: NDArray[np.integer[Any]],
     vocabulary: Vocabulary,
 ) -> list[InstanceRecord]:
-    """Summarise every instance (id k+1 for cluster k) that still has Gaussians.
+    """Summarise every instance (id k+1 for instance k) that still has Gaussians.
 
     Args:
         means: ``[N, 3]`` Gaussian centres.
-        instance_ids: ``[N]`` cluster index per Gaussian, -1 = none.
-        cluster_classes: ``[K]`` class index per cluster, -1 = unlabelled.
-        cluster_scores: ``[K]`` confidence of each cluster's class.
-        cluster_views: ``[K]`` number of views that voted for each cluster.
+        instance_ids: ``[N]`` instance index per Gaussian (an object, or a cluster), -1 = none.
+        cluster_classes: ``[K]`` class index per instance, -1 = unlabelled.
+        cluster_scores: ``[K]`` confidence of each instance's class.
+        cluster_views: ``[K]`` number of views each instance is seen in.
         vocabulary: the class names.
     """
     records = []

@@ -17,7 +17,6 @@ so a crashed run never leaves a half-written output)::
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 from collections.abc import Iterable, Mapping, Sequence
@@ -39,6 +38,7 @@ from dcseg.io.exports import (
     write_view_maps,
 )
 from dcseg.io.images import read_image, resize_nearest, write_png
+from dcseg.io.jsonfile import write_json
 from dcseg.io.ply import read_gaussians_ply, write_gaussians_ply
 from dcseg.io.run_state import (
     BlendMemory,
@@ -236,22 +236,3 @@ def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = 
     if size is not None:
         maps = {n: resize_nearest(m, size) for n, m in maps.items()}
     return Labels(semantic_ids, maps)
-
-
-def write_json(path: Path, body: Any) -> None:
-    """Write JSON with NaN/inf as null (strict JSON for every client)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_finite(body), indent=1, allow_nan=False)
-    path.write_text(text + "\n", encoding="utf-8")
-
-
-def _finite(value: Any) -> Any:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    if isinstance(value, np.generic):
-        return _finite(value.item())
-    return value

@@ -7,6 +7,7 @@ Supported layouts (see each module's docstring for the details):
 * ``replica``: NICE-SLAM Replica, ``results/`` + ``traj.txt`` (:mod:`.replica`);
 * ``nerfstudio``: ``transforms.json`` with depth (:mod:`.nerfstudio`);
 * ``record3d``: Record3D's ``.r3d`` export, ``metadata`` + ``rgbd/`` (:mod:`.record3d`);
+* ``record3d-exr``: Record3D's "EXR + JPG" export, ``metadata.json`` + ``rgb/`` + ``depth/``;
 * ``polycam``: Polycam's raw data export, ``keyframes/`` (:mod:`.polycam`);
 * ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`).
 
@@ -68,6 +69,7 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "replica": (replica.matches, replica.list_frames, "results/+traj.txt"),
     "nerfstudio": (nerfstudio.matches, nerfstudio.list_frames, "transforms.json"),
     "record3d": (record3d.matches, record3d.list_frames, "metadata+rgbd/"),
+    "record3d-exr": (record3d.matches_exr, record3d.list_exr_frames, "metadata.json+rgb/+depth/"),
     "polycam": (polycam.matches, polycam.list_frames, "keyframes/images+cameras/"),
     "7scenes": (sevenscenes.matches, sevenscenes.list_frames, "frame-*.color.*"),
 }
@@ -82,7 +84,7 @@ def detect_layout(folder: Path) -> str:
 
     Returns:
         One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
-        ``"nerfstudio"``, ``"record3d"``, ``"polycam"``, ``"7scenes"``).
+        ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``).
 
     Raises:
         InputError: no layout's markers are found.

@@ -148,3 +148,21 @@ def test_thresholds_are_validated() -> None:
         replace(AssignConfig(), contact_factor=0.0)
     with pytest.raises(ValueError, match="min_instance_gaussians"):
         AssignConfig(min_instance_gaussians=-1)
+
+
+def test_walls_meeting_at_a_corner_are_two_surfaces() -> None:
+    """One wall cluster bent round a corner: two regions (their normals differ); with the
+    surface tests off they are one."""
+    flat = patch(0, 0.6, 0, 0.6)
+    wall_x = np.stack([flat[:, 0], np.zeros(len(flat)), flat[:, 1]], axis=1)  # y = 0 plane
+    wall_y = np.stack([np.zeros(len(flat)), flat[:, 0] + SPACING, flat[:, 1]], axis=1)  # x = 0
+    parts = [(wall_x, 0), (wall_y, 0)]
+    split, _, _ = build(parts, [WALL], [unit(1, 0, 0)])
+    assert split.n_instances == 2 and split.classes.tolist() == [WALL, WALL]
+    away = flat[:, 0] > 0.1  # the corner's own Gaussians may go either way
+    first, second = split.ids[: len(flat)][away], split.ids[len(flat) :][away]
+    assert len(set(first.tolist())) == 1 and len(set(second.tolist())) == 1
+    assert first[0] != second[0]
+    off = AssignConfig(surface_min_normal_cosine=0.0, surface_max_tilt=1.0)
+    one, _, _ = build(parts, [WALL], [unit(1, 0, 0)], off)
+    assert one.n_instances == 1

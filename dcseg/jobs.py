@@ -27,6 +27,7 @@ from dcseg.io.captures import read_planned
 from dcseg.io.captures.plan import CapturePlan
 from dcseg.io.folders import FrameSelection
 from dcseg.io.ground_truth import read_ground_truth
+from dcseg.io.jsonfile import write_json
 from dcseg.io.masks import read_agnostic_masks
 from dcseg.io.ply import read_gaussians_ply
 from dcseg.io.run_output import (
@@ -39,7 +40,6 @@ from dcseg.io.run_output import (
     save_semantic,
     save_state,
     staging_dir,
-    write_json,
     write_outputs,
 )
 from dcseg.io.semantic import read_semantic_maps, read_vocabulary

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from service.artifacts import find_artifact
+from service.blobstore import Storage
 from service.models import Job
 from service.problems import ApiProblem
 from service.settings import Settings
@@ -57,17 +58,18 @@ def finished_job(settings: Settings, job: Job | None, job_id: str) -> JobPaths:
     return JobPaths(settings.storage_dir, job_id)
 
 
-def _read_json(paths: JobPaths, name: str) -> dict[str, Any] | None:
-    found = find_artifact(paths.output, name)
+def _read_json(storage: Storage, tenant: str, job_id: str, name: str) -> dict[str, Any] | None:
+    found = find_artifact(storage, tenant, job_id, name)
     if found is None:
         return None
-    body: dict[str, Any] = json.loads(found.path.read_text(encoding="utf-8"))
+    raw = b"".join(storage.read(tenant, found.item, 0, found.size - 1))
+    body: dict[str, Any] = json.loads(raw.decode("utf-8"))
     return body
 
 
-def read_instances(paths: JobPaths) -> dict[str, Any]:
+def read_instances(storage: Storage, tenant: str, paths: JobPaths) -> dict[str, Any]:
     """The job's ``instances.json``; 404 when the segment stage was skipped (no masks)."""
-    body = _read_json(paths, INSTANCES)
+    body = _read_json(storage, tenant, paths.job_id, INSTANCES)
     if body is None:
         raise ApiProblem(
             404,
@@ -79,9 +81,11 @@ def read_instances(paths: JobPaths) -> dict[str, Any]:
     return body
 
 
-def vocabulary(paths: JobPaths, records: Sequence[dict[str, Any]]) -> set[str]:
+def vocabulary(
+    storage: Storage, tenant: str, paths: JobPaths, records: Sequence[dict[str, Any]]
+) -> set[str]:
     """The class names of the job (``labels.json``, else those its instances carry)."""
-    body = _read_json(paths, LABELS)
+    body = _read_json(storage, tenant, paths.job_id, LABELS)
     if body is None:
         return {str(r["label"]) for r in records if r.get("label") is not None}
     return {str(item["name"]) for item in body.get("labels", [])}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from datetime import timedelta
 from typing import Annotated
 
@@ -87,11 +88,21 @@ def download_artifact(
 ) -> Response:
     """Download one artifact; honours ``Range: bytes=a-b``, ``If-Range`` and ``If-None-Match``
     (``*`` and weak tags match)."""
-    return send_file(_find(job_id, name, state, tenant), range_header, if_range, if_none_match)
+    found = _find(job_id, name, state, tenant)
+
+    def read(start: int, end: int) -> Iterator[bytes]:
+        return state.storage.read(tenant, found.item, start, end)
+
+    return send_file(found, read, range_header, if_range, if_none_match)
+
+
+Reader = Callable[[int, int], Iterator[bytes]]
+"""Bytes ``start..end`` (inclusive) of the file being sent, in chunks."""
 
 
 def send_file(
     found: artifacts.Artifact,
+    read: Reader,
     range_header: str | None,
     if_range: str | None,
     if_none_match: str | None,
@@ -103,13 +114,13 @@ def send_file(
     use_range = if_range is None or if_range.strip() == found.etag
     span = artifacts.parse_range(range_header, found.size) if use_range else None
     if span is None:
-        body = state.storage.read(tenant, found.item, 0, found.size - 1)
+        body = read(0, found.size - 1)
         headers["Content-Length"] = str(found.size)
         return StreamingResponse(body, media_type=found.media_type, headers=headers)
     start, end = span
     headers["Content-Range"] = f"bytes {start}-{end}/{found.size}"
     headers["Content-Length"] = str(end - start + 1)
-    body = state.storage.read(tenant, found.item, start, end)
+    body = read(start, end)
     return StreamingResponse(body, status_code=206, media_type=found.media_type, headers=headers)
 
 

@@ -4,6 +4,7 @@ cached in the job's folder, downloaded like artifacts (``/{name}``, ETag and Ran
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path as FilePath
 from typing import Annotated, Any
@@ -13,6 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, StreamingResponse
 
 from service import artifacts, exports, instances
+from service.blobstore import StoredFile, read_local
 from service.deps import AppState, StateDep, TenantDep
 from service.problems import ApiProblem, problem_responses
 from service.routes.artifacts import IfNoneMatch, IfRange, RangeHeader, send_file, send_headers
@@ -51,7 +53,7 @@ class Target:
 def _target(state: AppState, tenant: str, job_id: str, selection: exports.Selection) -> Target:
     """404 for an unknown job or instance, 409 for an unfinished job."""
     paths = instances.finished_job(state.settings, state.store.get_job(job_id, tenant), job_id)
-    records = instances.read_instances(paths).get("instances", [])
+    records = instances.read_instances(state.storage, tenant, paths).get("instances", [])
     if selection.instance is not None:
         instances.find_instance(records, job_id, selection.instance)
     return Target(job_id, exports.run_folder(paths), selection.folder(paths.folder), selection)
@@ -80,7 +82,20 @@ def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
 
 
 def _artifact(item: exports.ExportFile) -> artifacts.Artifact:
-    return artifacts.Artifact(item.name, item.path, item.size, item.sha256)
+    return artifacts.Artifact(StoredFile(item.name, item.size, item.sha256, path=item.path))
+
+
+def _send(
+    found: artifacts.Artifact, range_header: str | None, if_range: str | None, inm: str | None
+) -> Response:
+    """Exports are files in the API's export cache folder, read locally."""
+    path = found.item.path
+    assert path is not None
+
+    def read(start: int, end: int) -> Iterator[bytes]:
+        return read_local(path, start, end)
+
+    return send_file(found, read, range_header, if_range, inm)
 
 
 def _failure(target: Target, failed: exports.Failed) -> ApiProblem:
@@ -190,7 +205,7 @@ def download_scene_export(
 ) -> Response:
     """Download one file of a made scene export (ETag, ``Range``, as artifacts)."""
     found = _file(state, tenant, job_id, exports.Selection(fmt), name)
-    return send_file(found, range_header, if_range, if_none_match)
+    return _send(found, range_header, if_range, if_none_match)
 
 
 @router.head(SCENE_FILE, response_class=Response, responses=HEAD_RESPONSES)
@@ -221,7 +236,7 @@ def download_instance_export(
 ) -> Response:
     """Download one file of a made instance export (ETag, ``Range``, as artifacts)."""
     found = _file(state, tenant, job_id, exports.Selection(fmt, k), name)
-    return send_file(found, range_header, if_range, if_none_match)
+    return _send(found, range_header, if_range, if_none_match)
 
 
 @router.head(INSTANCE_FILE, response_class=Response, responses=HEAD_RESPONSES)

@@ -53,10 +53,10 @@ def list_instances(
     """The objects of a succeeded job, by id; follow ``next_page_token`` until it is absent.
     409 while the job has not succeeded, 404 when it segmented nothing (no masks uploaded)."""
     paths = _paths(job_id, state, tenant)
-    body = instances.read_instances(paths)
+    body = instances.read_instances(state.storage, tenant, paths)
     records: list[dict[str, Any]] = body.get("instances", [])
     keep = instances.Filter(labels=tuple(label or ()), min_score=min_score)
-    instances.check_labels(keep.labels, instances.vocabulary(paths, records))
+    instances.check_labels(keep.labels, instances.vocabulary(state.storage, tenant, paths, records))
     after = instances.decode_token(page_token, keep) if page_token else None
     chosen, more = instances.page(records, keep, after, page_size)
     token = instances.encode_token(int(chosen[-1]["id"]), keep) if more and chosen else None
@@ -75,5 +75,5 @@ def list_instances(
 def get_instance(job_id: str, k: InstanceId, state: StateDep, tenant: TenantDep) -> InstancePublic:
     """One object: its class, score, size, box, visibility and download links per format."""
     paths = _paths(job_id, state, tenant)
-    records = instances.read_instances(paths).get("instances", [])
+    records = instances.read_instances(state.storage, tenant, paths).get("instances", [])
     return instance_public(job_id, instances.find_instance(records, job_id, k))

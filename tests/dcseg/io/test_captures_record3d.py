@@ -11,6 +11,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
+from dcseg.cli import main
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.io import limits
@@ -287,3 +288,20 @@ def test_exr_pixels_count_against_the_validation_budget(tmp_path: Path) -> None:
     assert isinstance(report.problems[0], LimitProblem)
     assert report.problems[0].path.endswith("depth/2.exr")  # counted from the EXR header
     assert "number 6 of those to decode" in report.problems[0].reason
+
+
+def test_dcseg_validate_reports_r3d_problems(
+    r3d: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = write_r3d_file(r3d, tmp_path / "good.r3d")
+    fractions = []
+    for level in ("0", "1"):
+        assert main(["validate", str(good), "--min-confidence", level, "--json"]) == 0
+        summary = json.loads(capsys.readouterr().out)["summary"]["capture"]
+        assert summary["layout"] == "record3d"
+        fractions.append(summary["depth_valid_fraction"])
+    assert fractions[1] == pytest.approx(2 / 3)  # rows 0, 3, 6 of 9 have level 0
+    (r3d / "rgbd" / "2.conf").unlink()
+    bad = write_r3d_file(r3d, tmp_path / "bad.r3d")
+    assert main(["validate", str(bad), "--min-confidence", "1"]) == 1
+    assert "rgbd/2.conf: missing" in capsys.readouterr().out

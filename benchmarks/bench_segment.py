@@ -364,9 +364,11 @@ def markdown(summary: dict[str, Any]) -> str:
 
 
 def score(args: argparse.Namespace) -> None:
-    """Score every trained run in ``--work`` and write ``--out``."""
+    """Score every trained run in ``--work`` (or merge the rows of ``--merge``), write ``--out``."""
     rows, missing = [], []
-    for noise in args.noise:
+    for path in args.merge:
+        rows.extend(json.loads(path.read_text())["runs"])
+    for noise in args.noise if not args.merge else []:
         for layout in [*args.tuning, *args.heldout]:
             if not (run_dir(args.work, noise, layout) / "run" / "run.json").is_file():
                 missing.append(f"{noise}/layout{layout}")
@@ -403,6 +405,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--work", type=Path, default=Path("/tmp/dcseg-bench-segment"))
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/segment_heldout.json"))
     p.add_argument("--train", action="store_true", help="train the missing runs, then stop")
+    p.add_argument(
+        "--merge",
+        nargs="*",
+        type=Path,
+        default=[],
+        help="summarise the runs of earlier --out files (scored in parallel) instead of scoring",
+    )
     p.add_argument("--noise", nargs="+", default=list(NOISES), choices=NOISES)
     p.add_argument("--tuning", nargs="*", type=int, default=list(TUNING))
     p.add_argument("--heldout", nargs="*", type=int, default=list(HELDOUT))

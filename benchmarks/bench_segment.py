@@ -6,8 +6,16 @@ are tuned on layouts 0-2 (``--tuning``) and layouts 3-4 are reported apart as he
 the saved state with the current code and defaults (nothing is retrained), at several
 clustering seeds, so a change to clustering, masks or assignment is re-scored in minutes.
 
-    python benchmarks/bench_segment.py --train --work /work/bench-seg/work   # train what is missing
-    python benchmarks/bench_segment.py --work /work/bench-seg/work          # score the saved runs
+    python benchmarks/bench_segment.py --train --work WORK    # train what is missing
+    python benchmarks/bench_segment.py --work WORK            # score the saved runs
+    python benchmarks/bench_segment.py --work WORK --noise heavy --heldout 3 --tuning \
+        --out one.json                                        # score one run
+    python benchmarks/bench_segment.py --merge one.json two.json   # summarise runs scored apart
+    python benchmarks/bench_segment.py --work WORK --set assign.complete=false   # an ablation
+
+Scores go to ``--out`` (``benchmarks/results/segment_heldout.json``): every run's rows and a
+summary per noise level and group (mean, sample standard deviation, range, count). Training
+order puts the held-out layouts of every noise level before the tuning ones.
 
 Per run and clustering seed: the 3D protocol (each ground-truth point takes the label of the
 nearest Gaussian centre with opacity > 0.05 within 5 cm), the paper's projection protocol on

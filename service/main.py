@@ -34,6 +34,7 @@ from service.routes import (
     instances,
     jobs,
     uploads,
+    viewer,
 )
 from service.settings import Settings, get_settings
 from service.store import Store
@@ -233,7 +234,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     problems.install(app)
-    for module in (uploads, direct_uploads, jobs, events, artifacts, instances, exports, health):
+    for module in (
+        uploads,
+        direct_uploads,
+        jobs,
+        events,
+        artifacts,
+        instances,
+        exports,
+        health,
+        viewer,
+    ):
         app.include_router(module.router)
     return app
 

@@ -219,8 +219,12 @@ class InstancesPublic(BaseModel):
     """SHA-256 of the ``scene_labelled.ply`` whose ``instance_id`` column the ids index."""
 
 
-ExportFormat = Literal["ply", "spz", "splat", "glb"]
-"""Export formats (``dcseg.export.FORMATS``)."""
+ExportFormat = Literal["ply", "spz", "splat", "glb", "obj"]
+"""Export formats: those of ``dcseg.export.FORMATS`` (a test keeps them equal)."""
+
+
+ExportColour = Literal["instance", "class"]
+"""Palette colours of an export: by object or by class (``dcseg.export.ExportOptions``)."""
 
 
 class ExportLinks(BaseModel):
@@ -233,6 +237,8 @@ class ExportPublic(BaseModel):
     format: str
     instance: int | None
     """The object exported alone; None = the whole scene."""
+    options: dict[str, str | int]
+    """The export options asked for (``colour``, ``sh_degree``); empty = the defaults."""
     status: Literal["succeeded", "running"]
     """``running``: the export is being made (202); ask again after ``Retry-After``."""
     files: list[ArtifactPublic]

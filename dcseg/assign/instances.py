@@ -176,13 +176,14 @@ def cluster_planes(
     member = cluster_labels >= 0
     lab, pts = cluster_labels[member], means[member]
     count = np.maximum(np.bincount(lab, minlength=k), 1).astype(np.float64)
-    centroids = np.stack([np.bincount(lab, pts[:, i], k) for i in range(3)], axis=1)
-    centroids /= count[:, None]
+    sums = np.stack([np.bincount(lab, pts[:, i], k) for i in range(3)], axis=1)
+    centroids: NDArray[np.float64] = sums.astype(np.float64) / count[:, None]
     d = pts - centroids[lab]
     cov = np.zeros((k, 3, 3))
     np.add.at(cov, lab, d[:, :, None] * d[:, None, :])
     _, vectors = np.linalg.eigh(cov)
-    return centroids, vectors[:, :, 0]
+    normals: NDArray[np.float64] = vectors[:, :, 0]
+    return centroids, normals
 
 
 def coplanar(

@@ -10,10 +10,12 @@ For every frames x size pair: ``dcseg synth`` writes a scene into ``--work`` (ke
 second call reuses it), then a child process runs :func:`dcseg.jobs.run_job` on it with the
 chosen preset and optional step overrides (``--reconstruct-iterations``,
 ``--affinity-iterations``: a scale study at fewer steps still shows how memory grows with
-frames and pixels). Each row has the child's wall and CPU seconds, its peak RSS, the peak by
-the end of each phase (``run.json``: read, reconstruct, train, segment, evaluate, write), the
-per-phase seconds, the cache's size on disk and ``state/`` per frame. Rows are written to
-``--out`` as they finish.
+frames and pixels) and frame budget (``--max-side``, ``--keyframes``; the fast preset trains
+at most 200 keyframes, so a study of growth in frames passes ``--keyframes all``). Each row
+has the child's wall and CPU seconds, its peak RSS, the peak by the end of each phase
+(``run.json``: read, reconstruct, train, segment, evaluate, write), the per-phase seconds,
+the cache's size on disk and ``state/`` per frame. Rows are written to ``--out`` as they
+finish.
 """
 
 from __future__ import annotations
@@ -47,11 +49,14 @@ def child(args: argparse.Namespace) -> int:
     from dcseg.jobs import RunInputs, run_job
     from dcseg.options import build_config, parse_options
 
-    options: dict[str, Any] = {"reconstruct": {}, "affinity": {}}
+    options: dict[str, Any] = {"reconstruct": {}, "affinity": {}, "budget": {}}
     if args.reconstruct_iterations is not None:
         options["reconstruct"]["iterations"] = args.reconstruct_iterations
     if args.affinity_iterations is not None:
         options["affinity"]["iterations"] = args.affinity_iterations
+    for name, value in (("max_side", args.max_side), ("max_frames", args.keyframes)):
+        if value is not None:
+            options["budget"][name] = int(value) if value.isdigit() else value
     cfg, _ = build_config(args.preset, parse_options(options))
     run_job(RunInputs.from_bundle(Path(args.scene)), cfg, Path(args.run), device=args.device)
     return 0
@@ -60,7 +65,7 @@ def child(args: argparse.Namespace) -> int:
 def measure(scene: Path, run: Path, args: argparse.Namespace) -> dict[str, Any]:
     command = [sys.executable, __file__, "--child", "--scene", str(scene), "--run", str(run)]
     command += ["--preset", args.preset, "--device", args.device]
-    for flag in ("reconstruct_iterations", "affinity_iterations"):
+    for flag in ("reconstruct_iterations", "affinity_iterations", "max_side", "keyframes"):
         value = getattr(args, flag)
         if value is not None:
             command += [f"--{flag.replace('_', '-')}", str(value)]
@@ -95,6 +100,8 @@ def main() -> int:
     parser.add_argument("--device", default="auto")
     parser.add_argument("--reconstruct-iterations", type=int)
     parser.add_argument("--affinity-iterations", type=int)
+    parser.add_argument("--max-side", help="frame budget: N or native (default: the preset's)")
+    parser.add_argument("--keyframes", help="frame budget: N or all (default: the preset's)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/dcseg-scale"))
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/scale.json"))
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -122,6 +129,8 @@ def write(args: argparse.Namespace, rows: list[dict[str, Any]]) -> None:
         "overrides": {
             "reconstruct.iterations": args.reconstruct_iterations,
             "affinity.iterations": args.affinity_iterations,
+            "budget.max_side": args.max_side,
+            "budget.max_frames": args.keyframes,
         },
         "machine": {"cpus": len(os.sched_getaffinity(0)), "python": platform.python_version()},
         "rows": rows,

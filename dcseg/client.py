@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path, PurePosixPath
 from types import TracebackType
 from typing import Any
@@ -162,31 +162,155 @@ class Client:
         ]
         return items
 
-    def download(self, job_id: str, dest: Path) -> list[Path]:
-        """Download every artifact into ``dest`` (sub-folders per stage), checking SHA-256."""
-        written: list[Path] = []
-        for item in self.artifacts(job_id):
-            relative = PurePosixPath(item["name"])
-            if relative.is_absolute() or ".." in relative.parts:
-                raise ApiError(500, {"detail": f"unsafe artifact name {item['name']!r}"})
-            target = dest.joinpath(*relative.parts)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            partial = target.with_name(target.name + ".part")
-            digest = hashlib.sha256()
-            with self._http.stream("GET", item["url"], timeout=None) as response:
-                if response.status_code >= 400:
-                    response.read()
-                    self._json(response)
-                with partial.open("wb") as out:
-                    for chunk in response.iter_bytes():
-                        digest.update(chunk)
-                        out.write(chunk)
-            if digest.hexdigest() != item["sha256"]:
-                partial.unlink()
-                raise ApiError(500, {"detail": f"{item['name']}: SHA-256 mismatch"})
-            partial.replace(target)
-            written.append(target)
-        return written
+    def download(self, job_id: str, dest: Path, *, only: Sequence[str] | None = None) -> list[Path]:
+        """Download the job's artifacts into ``dest`` (sub-folders per stage), checking SHA-256.
+
+        Args:
+            only: artifact names to fetch; an entry matches a name ending in it on a ``/``
+                boundary (``instances.json`` is ``segment/instances.json``). ValueError
+                naming the entries that match nothing, before anything is downloaded.
+        """
+        return self._fetch_all(select(self.artifacts(job_id), only), dest)
+
+    def instances(
+        self,
+        job_id: str,
+        *,
+        label: str | Sequence[str] | None = None,
+        min_score: float | None = None,
+        page_size: int = 100,
+    ) -> list[dict[str, Any]]:
+        """Every object of a succeeded job (following the pages), optionally of the classes
+        ``label`` and scored at least ``min_score``."""
+        params: dict[str, Any] = {"page_size": page_size}
+        if label is not None:
+            params["label"] = [label] if isinstance(label, str) else list(label)
+        if min_score is not None:
+            params["min_score"] = min_score
+        found: list[dict[str, Any]] = []
+        while True:
+            body = self._json(self._http.get(f"/v1/jobs/{job_id}/instances", params=params))
+            found += body["instances"]
+            if not body.get("next_page_token"):
+                return found
+            params["page_token"] = body["next_page_token"]
+
+    def instance(self, job_id: str, k: int) -> dict[str, Any]:
+        """One object: class, score, size, box, visibility and export links per format."""
+        return self._json(self._http.get(f"/v1/jobs/{job_id}/instances/{k}"))
+
+    def export(
+        self,
+        job_id: str,
+        fmt: str,
+        *,
+        instance: int | None = None,
+        timeout: float = 3600.0,
+        poll: float | None = None,
+    ) -> dict[str, Any]:
+        """The export of the scene (or of object ``instance``) in ``fmt``, waiting while the
+        service makes it (202, honouring ``Retry-After``); TimeoutError after ``timeout`` s."""
+        base = f"/v1/jobs/{job_id}"
+        url = (
+            f"{base}/exports/{fmt}"
+            if instance is None
+            else f"{base}/instances/{instance}/exports/{fmt}"
+        )
+        deadline = time.monotonic() + timeout
+        while True:
+            response = self._http.get(url)
+            body = self._json(response)
+            if response.status_code != 202:
+                return body
+            delay = poll if poll is not None else float(response.headers.get("Retry-After", 2))
+            if time.monotonic() + delay > deadline:
+                raise TimeoutError(f"the {fmt} export of job {job_id} not ready after {timeout} s")
+            time.sleep(delay)
+
+    def download_export(
+        self,
+        job_id: str,
+        fmt: str,
+        dest: Path,
+        *,
+        instance: int | None = None,
+        only: Sequence[str] | None = None,
+        timeout: float = 3600.0,
+    ) -> list[Path]:
+        """Download an export's files (see :meth:`export`) into ``dest``, checking SHA-256."""
+        files = self.export(job_id, fmt, instance=instance, timeout=timeout)["files"]
+        return self._fetch_all(select(files, only), dest)
+
+    def _fetch_all(self, items: Sequence[dict[str, Any]], dest: Path) -> list[Path]:
+        return [self._fetch(item, dest) for item in items]
+
+    def _fetch(self, item: dict[str, Any], dest: Path) -> Path:
+        """Stream one listed file (``{name, url, sha256}``) to ``dest/<name>`` via a ``.part``."""
+        relative = PurePosixPath(item["name"])
+        if relative.is_absolute() or ".." in relative.parts:
+            raise ApiError(500, {"detail": f"unsafe file name {item['name']!r}"})
+        target = dest.joinpath(*relative.parts)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        partial = target.with_name(target.name + ".part")
+        digest = self._fetch_presigned(item, partial) or self._stream(item["url"], partial)
+        if digest != item["sha256"]:
+            partial.unlink()
+            raise ApiError(500, {"detail": f"{item['name']}: SHA-256 mismatch"})
+        partial.replace(target)
+        return target
+
+    def _stream(self, url: str, partial: Path) -> str:
+        """Download ``url`` through the API into ``partial``; its SHA-256."""
+        digest = hashlib.sha256()
+        with self._http.stream("GET", url, timeout=None) as response:
+            if response.status_code >= 400:
+                response.read()
+                self._json(response)
+            with partial.open("wb") as out:
+                for chunk in response.iter_bytes():
+                    digest.update(chunk)
+                    out.write(chunk)
+        return digest.hexdigest()
+
+    def _fetch_presigned(self, item: dict[str, Any], partial: Path) -> str | None:
+        """Download the artifact's presigned ``download_url`` straight from the object store
+        (no API key is sent there); None when it has none or it fails (expired, unreachable,
+        corrupted): the caller then downloads through the API."""
+        url = item.get("download_url")
+        if not url:
+            return None
+        digest = hashlib.sha256()
+        try:
+            with (
+                httpx.stream("GET", url, timeout=self._http.timeout) as response,
+                partial.open("wb") as out,
+            ):
+                if response.status_code != 200:
+                    return None
+                for chunk in response.iter_bytes():
+                    digest.update(chunk)
+                    out.write(chunk)
+        except httpx.HTTPError:
+            return None
+        found = digest.hexdigest()
+        return found if found == item["sha256"] else None
+
+
+def matches(name: str, entry: str) -> bool:
+    """Whether ``entry`` names ``name``: equal, or its trailing ``/``-separated part."""
+    entry = entry.strip("/")
+    return name == entry or name.endswith("/" + entry)
+
+
+def select(items: Sequence[dict[str, Any]], only: Sequence[str] | None) -> list[dict[str, Any]]:
+    """The listed files ``only`` names (all when None); ValueError naming unmatched entries."""
+    if only is None:
+        return list(items)
+    missing = [e for e in only if not any(matches(i["name"], e) for i in items)]
+    if missing:
+        names = ", ".join(i["name"] for i in items) or "none"
+        raise ValueError(f"no file named {', '.join(map(repr, missing))} (there are: {names})")
+    return [i for i in items if any(matches(i["name"], e) for e in only)]
 
 
 DEFAULT_URL = "http://127.0.0.1:8000"

@@ -11,7 +11,7 @@ import platform
 import resource
 import shutil
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from importlib import metadata
@@ -23,8 +23,11 @@ from dcseg.config import CaptureOptions, PipelineConfig
 from dcseg.errors import InputError
 from dcseg.gaussians import Gaussians
 from dcseg.io.bundle import BUNDLE_LAYOUT, bundle_paths
-from dcseg.io.captures import read_capture
+from dcseg.io.captures import read_planned
+from dcseg.io.captures.plan import CapturePlan
+from dcseg.io.folders import FrameSelection
 from dcseg.io.ground_truth import read_ground_truth
+from dcseg.io.jsonfile import write_json
 from dcseg.io.masks import read_agnostic_masks
 from dcseg.io.ply import read_gaussians_ply
 from dcseg.io.run_output import (
@@ -37,7 +40,6 @@ from dcseg.io.run_output import (
     save_semantic,
     save_state,
     staging_dir,
-    write_json,
     write_outputs,
 )
 from dcseg.io.semantic import read_semantic_maps, read_vocabulary
@@ -143,14 +145,15 @@ def run_job(
     """
     clock = _Clock()
     with clock.phase("read"):
-        capture = read_capture(inputs.capture, inputs.capture_options)
+        capture, plan = read_planned(inputs.capture, inputs.capture_options, cfg.budget)
         vocabulary = read_vocabulary(inputs.vocabulary)
-        semantic = read_semantic_maps(inputs.semantic_masks, vocabulary, size=_frame_size(capture))
+        semantic = read_semantic_maps(
+            inputs.semantic_masks, vocabulary, size=_frame_size(capture), frames=_selection(plan)
+        )
         gt = _read_gt(inputs.ground_truth, vocabulary)
-    _check_subset(semantic, set(capture.names), "class-aware masks")
     tmp = staging_dir(out)
     try:
-        trained = _train(inputs, capture, cfg, clock, on_progress, device, tmp / "state")
+        trained = _train(inputs, capture, plan, cfg, clock, on_progress, device, tmp / "state")
         saved = replace(trained, semantic=dict(semantic), vocabulary=vocabulary)
         return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True, tmp=tmp)
     except BaseException:
@@ -173,10 +176,10 @@ def train_job(
     """
     clock = _Clock()
     with clock.phase("read"):
-        capture = read_capture(inputs.capture, inputs.capture_options)
+        capture, plan = read_planned(inputs.capture, inputs.capture_options, cfg.budget)
     tmp = staging_dir(out)
     try:
-        saved = _train(inputs, capture, cfg, clock, on_progress, device, tmp / "state")
+        saved = _train(inputs, capture, plan, cfg, clock, on_progress, device, tmp / "state")
         save_state(tmp, saved.trained, {}, None, saved.previews)
         record = _base_record(saved, cfg, clock)
         write_json(tmp / "run.json", record)
@@ -190,6 +193,7 @@ def train_job(
 def _train(
     inputs: RunInputs,
     capture: Capture,
+    plan: CapturePlan,
     cfg: PipelineConfig,
     clock: _Clock,
     on_progress: Progress,
@@ -204,8 +208,9 @@ def _train(
 
     where = device_of(device)
     with clock.phase("read"):
-        agnostic = read_agnostic_masks(inputs.agnostic_masks, size=_frame_size(capture))
-    _check_subset(agnostic, set(capture.names), "class-agnostic masks")
+        agnostic = read_agnostic_masks(
+            inputs.agnostic_masks, size=_frame_size(capture), frames=_selection(plan)
+        )
     if not any(len(m) for m in agnostic.values()):
         raise InputError.single("class-agnostic masks", "no frame has any mask")
     reconstruction: dict[str, Any] = {"device": str(where)}
@@ -215,7 +220,11 @@ def _train(
         trained = train_scene(gaussians, capture, agnostic, cfg, on_progress, cache_dir=state)
     picked = [capture.frames[i] for i in preview_indices(len(capture))]
     previews = [(f.name, f.rgb) for f in picked]
-    record = {"inputs": _describe(inputs), "reconstruction": reconstruction}
+    record = {
+        "inputs": _describe(inputs),
+        "capture": plan.summary(),
+        "reconstruction": reconstruction,
+    }
     return SavedRun(trained, {}, Vocabulary(()), previews, record)
 
 
@@ -264,9 +273,10 @@ def _with_semantic(saved: SavedRun, masks: Path | None, vocabulary_file: Path | 
     if masks is None or vocabulary_file is None:
         raise InputError.single("semantic masks", "new class-aware masks need a vocabulary")
     vocabulary = read_vocabulary(vocabulary_file)
-    size = (saved.trained.views[0].width, saved.trained.views[0].height)
-    semantic = read_semantic_maps(masks, vocabulary, size=size)
-    _check_subset(semantic, {v.name for v in saved.trained.views}, str(masks))
+    names = frozenset(v.name for v in saved.trained.views)
+    listed = saved.record.get("capture", {}).get("listed_frames")
+    frames = FrameSelection(names, names if listed is None else frozenset(listed))
+    semantic = read_semantic_maps(masks, vocabulary, size=_view_size(saved), frames=frames)
     return replace(saved, semantic=semantic, vocabulary=vocabulary)
 
 
@@ -274,7 +284,7 @@ def evaluate_job(run: Path, gt_file: Path) -> dict[str, Any]:
     """Evaluate a finished run against ground truth; writes and returns ``metrics.json``."""
     saved = load_run(run)
     gt = read_ground_truth(gt_file, len(saved.vocabulary))
-    labels = load_labels(run, [v.name for v in saved.trained.views])
+    labels = load_labels(run, [v.name for v in saved.trained.views], size=_view_size(saved))
     return _evaluate(saved, labels, gt, _config(saved), run)
 
 
@@ -298,7 +308,9 @@ def _finish(
         with clock.phase("evaluate"):
             metrics = None if gt is None else _evaluate(saved, segmentation.labels(), gt, cfg, tmp)
         with clock.phase("write"):
-            write_outputs(tmp, trained, segmentation, vocabulary, saved.previews)
+            write_outputs(
+                tmp, trained, segmentation, vocabulary, saved.previews, size=_output_size(saved)
+            )
             _write_state(tmp, saved, train_state)
             save_clusters(tmp / "state", segmentation)
         record = _record(saved, cfg, segmentation, clock, metrics)
@@ -418,11 +430,21 @@ def _read_gt(path: Path | None, vocabulary: Vocabulary) -> GroundTruth | None:
     return None if path is None else read_ground_truth(path, len(vocabulary))
 
 
-def _check_subset(per_frame: Mapping[str, Any], names: set[str], what: str) -> None:
-    extra = sorted(set(per_frame) - names)
-    if extra:
-        shown = ", ".join(extra[:5]) + (" ..." if len(extra) > 5 else "")
-        raise InputError.single(what, f"masks for frames the capture lacks: {shown}")
+def _selection(plan: CapturePlan) -> FrameSelection:
+    """Masks are read for the planned frames only; masks of frames the capture lacks are
+    refused, those of frames the plan left out are skipped unread."""
+    return FrameSelection(frozenset(plan.names), frozenset(plan.listed))
+
+
+def _view_size(saved: SavedRun) -> tuple[int, int]:
+    """The working ``(width, height)`` of a trained run's views."""
+    return saved.trained.views[0].width, saved.trained.views[0].height
+
+
+def _output_size(saved: SavedRun) -> tuple[int, int] | None:
+    """The capture's resolution, at which per-view outputs are written (None = the views')."""
+    size = saved.record.get("capture", {}).get("output_size")
+    return None if size is None else (int(size[0]), int(size[1]))
 
 
 def _describe(inputs: RunInputs) -> dict[str, Any]:

@@ -1,5 +1,16 @@
 # dcseg API: slim Python, no torch, no CUDA. Build from the repository root:
 #   docker build -f docker/api.Dockerfile -t dcseg-api .
+
+# The browser viewer served at /viewer/{job_id}: its JavaScript bundle, built from viewer/ with
+# the versions locked in viewer/package-lock.json (nothing is fetched at run time).
+FROM node:20-slim AS viewer
+WORKDIR /src/viewer
+COPY viewer/package.json viewer/package-lock.json ./
+RUN npm ci --no-audit --no-fund --loglevel=error
+COPY viewer/build.mjs ./
+COPY viewer/src ./src
+RUN npm run build
+
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -17,6 +28,7 @@ RUN pip install -r /tmp/api-requirements.txt
 
 COPY pyproject.toml README.md ./
 COPY dcseg ./dcseg
+COPY --from=viewer /src/dcseg/viewer/static/viewer.js ./dcseg/viewer/static/viewer.js
 COPY service ./service
 COPY worker ./worker
 RUN pip install --no-deps . \

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Create .venv (if missing) and install dcseg with its dev extras. Source it or run it.
+# Create .venv (if missing), install dcseg with its dev extras and build the browser viewer.
+# Source it or run it.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -9,3 +10,11 @@ python3 -c 'import sys; assert sys.version_info >= (3, 11), "dcseg needs Python 
 # The CPU wheel first: an unpinned torch would pull a multi-GB CUDA build.
 .venv/bin/python -m pip install -q torch==2.13.0
 .venv/bin/python -m pip install -q -e ".[dev]"
+
+# The viewer's JavaScript (versions locked in viewer/package-lock.json) into
+# dcseg/viewer/static/viewer.js; without npm, `dcseg view` and /viewer/{id} say how to build it.
+if command -v npm >/dev/null; then
+    (cd viewer && npm ci --no-audit --no-fund --loglevel=error && npm run --silent build)
+else
+    echo "setup: npm not found; the browser viewer is not built (see viewer/)" >&2
+fi

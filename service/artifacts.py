@@ -3,17 +3,14 @@ trusted), downloads carry a strong ETag (the SHA-256) and answer single ``Range`
 
 from __future__ import annotations
 
-import json
 import mimetypes
 import re
-from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from pathlib import PurePosixPath
 
+from service.blobstore import Storage, StoredFile
 from service.problems import ApiProblem
 
-CHUNK = 1 << 20
 MEDIA_TYPES = {
     ".ply": "application/octet-stream",
     ".json": "application/json",
@@ -31,15 +28,26 @@ _RANGE = re.compile(r"^bytes=(\d*)-(\d*)$", re.IGNORECASE)
 
 @dataclass(frozen=True)
 class Artifact:
-    name: str
-    path: Path
-    size: int
-    sha256: str
+    """A file of a finished stage, as the API serves it."""
+
+    item: StoredFile
+
+    @property
+    def name(self) -> str:
+        return self.item.name
+
+    @property
+    def size(self) -> int:
+        return self.item.size
+
+    @property
+    def sha256(self) -> str:
+        return self.item.sha256
 
     @property
     def media_type(self) -> str:
-        suffix = self.path.suffix.lower()
-        guessed = MEDIA_TYPES.get(suffix) or mimetypes.guess_type(self.path.name)[0]
+        suffix = PurePosixPath(self.name).suffix.lower()
+        guessed = MEDIA_TYPES.get(suffix) or mimetypes.guess_type(self.name)[0]
         return guessed or "application/octet-stream"
 
     @property
@@ -47,28 +55,13 @@ class Artifact:
         return f'"{self.sha256}"'
 
 
-def read_manifest(output: Path) -> dict[str, Any]:
-    try:
-        data: dict[str, Any] = json.loads((output / "manifest.json").read_text(encoding="utf-8"))
-    except (FileNotFoundError, json.JSONDecodeError):
-        return {"stages": []}
-    return data
-
-
-def list_artifacts(output: Path) -> list[Artifact]:
+def list_artifacts(storage: Storage, tenant: str, job_id: str) -> list[Artifact]:
     """Every file of every finished stage, in stage order."""
-    found: list[Artifact] = []
-    root = output.resolve()
-    for stage in read_manifest(output).get("stages", []):
-        for name, info in sorted(stage.get("files", {}).items()):
-            path = (root / name).resolve()
-            if path.is_relative_to(root) and path.is_file():
-                found.append(Artifact(name, path, int(info["size"]), str(info["sha256"])))
-    return found
+    return [Artifact(item) for item in storage.files(tenant, job_id)]
 
 
-def find_artifact(output: Path, name: str) -> Artifact | None:
-    return next((a for a in list_artifacts(output) if a.name == name), None)
+def find_artifact(storage: Storage, tenant: str, job_id: str, name: str) -> Artifact | None:
+    return next((a for a in list_artifacts(storage, tenant, job_id) if a.name == name), None)
 
 
 def parse_range(header: str | None, size: int) -> tuple[int, int] | None:
@@ -127,16 +120,3 @@ def unsatisfiable(size: int) -> ApiProblem:
         slug="range-not-satisfiable",
         headers={"Content-Range": f"bytes */{size}"},
     )
-
-
-def read_bytes(path: Path, start: int, end: int) -> Iterator[bytes]:
-    """Yield bytes ``start..end`` (inclusive) of ``path`` in chunks."""
-    with path.open("rb") as handle:
-        handle.seek(start)
-        left = end - start + 1
-        while left > 0:
-            chunk = handle.read(min(CHUNK, left))
-            if not chunk:
-                break
-            left -= len(chunk)
-            yield chunk

@@ -14,6 +14,7 @@ import redis
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from service.blobstore import Storage, make_storage
 from service.problems import ApiProblem
 from service.queue import JobQueue
 from service.settings import Settings
@@ -182,6 +183,12 @@ class AppState:
     auth_limiter: Limiter = field(default_factory=lambda: RateLimiter(30))
     """Failed authentications per client address."""
     streams: StreamSlots = field(default_factory=StreamSlots)
+    storage: Storage = field(default=None)  # type: ignore[assignment]
+    """Uploads, stage outputs and artifacts (default: from the settings)."""
+
+    def __post_init__(self) -> None:
+        if self.storage is None:
+            self.storage = make_storage(self.settings)
 
 
 def get_state(request: Request) -> AppState:

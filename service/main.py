@@ -21,10 +21,21 @@ from fastapi.concurrency import run_in_threadpool
 
 from dcseg import __version__
 from service import problems
+from service.blobstore import Storage, make_storage
 from service.deps import LOCAL_TENANT, AppState, make_limiter
 from service.exports import Exporter
 from service.queue import JobQueue, make_queue
-from service.routes import artifacts, events, exports, health, instances, jobs, uploads
+from service.routes import (
+    artifacts,
+    direct_uploads,
+    events,
+    exports,
+    health,
+    instances,
+    jobs,
+    uploads,
+    viewer,
+)
 from service.settings import Settings, get_settings
 from service.store import Store
 from service.uploads import remove_expired_uploads
@@ -141,18 +152,18 @@ def remove_abandoned_uploads(storage: Path) -> None:
             shutil.rmtree(folder, ignore_errors=True)
 
 
-def housekeep_once(store: Store, settings: Settings) -> None:
+def housekeep_once(store: Store, settings: Settings, storage: Storage) -> None:
     """Delete expired uploads and idempotency records (blocking)."""
-    remove_expired_uploads(store, settings)
+    remove_expired_uploads(store, settings, storage)
     store.idempotency_sweep(timedelta(seconds=settings.idempotency_ttl_s))
 
 
-async def housekeep(store: Store, settings: Settings) -> None:
+async def housekeep(store: Store, settings: Settings, storage: Storage) -> None:
     """Forever, every ``housekeeping_interval_s``: :func:`housekeep_once`."""
     while True:
         await asyncio.sleep(settings.housekeeping_interval_s)
         try:
-            await run_in_threadpool(housekeep_once, store, settings)
+            await run_in_threadpool(housekeep_once, store, settings, storage)
         except Exception:
             logger.exception("housekeeping failed; retrying")
 
@@ -170,10 +181,13 @@ def open_state(settings: Settings) -> AppState:
         reach = "every client" if settings.allow_unauthenticated else "loopback clients only"
         logger.warning("no API keys: authentication is off (tenant %r, %s)", LOCAL_TENANT, reach)
     queue = make_queue(settings)
+    storage = make_storage(settings)
+    storage.setup()
     return AppState(
         settings=settings,
         store=store,
         queue=queue,
+        storage=storage,
         key_hashes=key_hashes,
         limiter=make_limiter(settings, "requests", settings.rate_limit_per_minute),
         auth_limiter=make_limiter(settings, "failed-auth", settings.failed_auth_per_minute),
@@ -201,7 +215,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             recover_lost_jobs(state.store, state.queue, current, local, resend=not swept),
             name="recovery sweep",
         )
-        housekeeping = asyncio.create_task(housekeep(state.store, current), name="housekeeping")
+        housekeeping = asyncio.create_task(
+            housekeep(state.store, current, state.storage), name="housekeeping"
+        )
         undo_drain = events.drain_on_signals(app)  # SIGTERM ends open event streams at once
         try:
             yield
@@ -218,7 +234,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     problems.install(app)
-    for module in (uploads, jobs, events, artifacts, instances, exports, health):
+    for module in (
+        uploads,
+        direct_uploads,
+        jobs,
+        events,
+        artifacts,
+        instances,
+        exports,
+        health,
+        viewer,
+    ):
         app.include_router(module.router)
     return app
 

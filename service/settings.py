@@ -24,6 +24,52 @@ class Settings(BaseSettings):
     storage_dir: Path = Path("./dcseg-data")
     """Uploads and job artifacts; shared by the API and every worker."""
 
+    storage_backend: Literal["local", "s3"] = "local"
+    """Where uploads, stage outputs, manifests and artifacts live: ``local`` = under
+    :attr:`storage_dir` (shared by API and workers), ``s3`` = an S3-compatible bucket
+    (:attr:`s3_bucket`); then ``storage_dir`` only holds the API's temporary upload folders
+    (and the default SQLite database) and each worker works in its own :attr:`scratch_dir`."""
+
+    s3_endpoint_url: str | None = None
+    """S3 endpoint (``http://seaweedfs:8333``, ``https://s3.eu-west-1.amazonaws.com``); None =
+    the AWS default for :attr:`s3_region`. Always addressed path-style
+    (``<endpoint>/<bucket>/<key>``)."""
+
+    s3_public_endpoint_url: str | None = None
+    """The endpoint clients reach for presigned URLs when it differs from :attr:`s3_endpoint_url`
+    (an internal host name in compose, say); None = the same."""
+
+    s3_bucket: str = "dcseg"
+    """The bucket (created at API startup if missing)."""
+
+    s3_prefix: str = ""
+    """Key prefix inside the bucket (``dcseg/`` to share a bucket); each tenant's objects are
+    under ``<prefix>tenants/<tenant>/``."""
+
+    s3_region: str = "us-east-1"
+    """Region used for request signing."""
+
+    s3_access_key_id: SecretStr | None = None
+    """Access key; None = boto3's default credential chain (``AWS_*`` variables, instance role)."""
+
+    s3_secret_access_key: SecretStr | None = None
+    """Secret key (never shown by ``repr``/logs)."""
+
+    presign_expiry_s: int = Field(default=300, ge=1, le=7 * 24 * 3600)
+    """Lifetime of presigned artifact download URLs and direct-upload part URLs (S3 only)."""
+
+    direct_upload_part_bytes: int = Field(default=64 * 2**20, ge=5 * 2**20)
+    """Part size of a presigned multipart upload (S3's minimum part is 5 MiB)."""
+
+    scratch_dir: Path = Path("./dcseg-scratch")
+    """S3 mode: the worker's private scratch folder (inputs and finished stages are fetched
+    here, one sub-folder per job, removed when the job stops)."""
+
+    scratch_max_bytes: int = Field(default=50 * GIB, ge=1)
+    """S3 mode: most bytes one job may fetch and write in the worker's scratch folder (the
+    archive, its extraction, finished stages' files and the stage being run); past it the job
+    fails with a message naming this setting."""
+
     database_url: str | None = None
     """SQLAlchemy URL of the job store; None = ``sqlite:///<storage_dir>/dcseg.db``.
     PostgreSQL: ``postgresql+psycopg://user@host:5432/dbname``."""

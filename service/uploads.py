@@ -20,18 +20,21 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from contextlib import contextmanager
 from datetime import timedelta
 from pathlib import Path
-from typing import IO, Any, TypeVar
+from typing import IO, TYPE_CHECKING, Any, TypeVar
 
 import anyio
 import anyio.to_thread
 from fastapi.concurrency import run_in_threadpool
 
-from service.artifacts import read_manifest
+from service.blobstore import Storage
 from service.models import utcnow
 from service.problems import ApiProblem
 from service.settings import Settings
 from service.store import Store, UploadInUse
-from worker.contract import JobPaths, UploadPaths, input_digests, input_layout
+from worker.contract import input_digests, input_layout
+
+if TYPE_CHECKING:
+    from service.deps import AppState
 
 logger = logging.getLogger(__name__)
 
@@ -266,15 +269,6 @@ def check_free_space(settings: Settings, adding: int) -> None:
         )
 
 
-def tenant_usage(store: Store, settings: Settings, tenant: str) -> int:
-    """Bytes the tenant stores: its extracted uploads plus its jobs' outputs (manifests)."""
-    used, job_ids = store.tenant_storage(tenant)
-    for job_id in job_ids:
-        stages = read_manifest(JobPaths(settings.storage_dir, job_id).output).get("stages", [])
-        used += sum(int(f["size"]) for st in stages for f in st.get("files", {}).values())
-    return used
-
-
 def check_quota(settings: Settings, used: int, adding: int) -> None:
     """507 when ``adding`` bytes would take the tenant past its quota."""
     quota = settings.tenant_storage_quota_bytes
@@ -290,13 +284,12 @@ def check_quota(settings: Settings, used: int, adding: int) -> None:
         )
 
 
-def check_room(
-    store: Store, settings: Settings, tenant: str, adding: int, *, written: bool = False
-) -> None:
-    """Free space and the tenant's quota for ``adding`` more bytes, which are ``written``
-    to disk already or not yet (blocking: call it on a thread)."""
-    check_free_space(settings, 0 if written else adding)
-    check_quota(settings, tenant_usage(store, settings, tenant), adding)
+def check_room(state: AppState, tenant: str, adding: int, *, written: bool = False) -> None:
+    """Free space and the tenant's quota (counted by the storage) for ``adding`` more bytes,
+    which are ``written`` to disk already or not yet (blocking: call it on a thread)."""
+    check_free_space(state.settings, 0 if written else adding)
+    used = state.storage.tenant_bytes(state.store, tenant)
+    check_quota(state.settings, used, adding)
 
 
 def tree_bytes(folder: Path) -> int:
@@ -364,7 +357,7 @@ def validation_pool(app_state: Any, settings: Settings) -> ValidationPool:
 # ----- expiry -----
 
 
-def remove_expired_uploads(store: Store, settings: Settings) -> list[str]:
+def remove_expired_uploads(store: Store, settings: Settings, storage: Storage) -> list[str]:
     """Delete uploads no job refers to that are older than ``upload_expiry_s``; their ids.
 
     An upload some job uses (finished or not) is kept; one a job is created for at the same
@@ -381,7 +374,7 @@ def remove_expired_uploads(store: Store, settings: Settings) -> list[str]:
         except UploadInUse:
             continue
         if upload is not None:
-            remove(UploadPaths(settings.storage_dir, upload_id).folder)
+            storage.remove_upload(upload.tenant_id, upload_id)
             removed.append(upload_id)
     if removed:
         logger.info("removed %d expired upload(s): %s", len(removed), removed)

@@ -2,10 +2,11 @@
 
 No Celery here: the Celery task and the embedded worker both call :func:`execute_job`.
 
-Each stage writes into ``output/.tmp-<stage>/``; when it returns, the folder is renamed to
-``output/<stage>/`` and the stage is appended to ``output/manifest.json`` (written to a temp
-name, then renamed). A redelivered job therefore skips every stage in the manifest and redoes
-at most the stage it was in; a half-written stage folder is never listed as an artifact.
+Each stage writes into ``<workspace output>/.tmp-<stage>/``; when it returns, the workspace
+commits it (:mod:`worker.workspace`: renamed to ``output/<stage>/`` and appended to
+``output/manifest.json`` in the shared folder, or uploaded and its manifest object written
+last in object storage). A redelivered job therefore skips every stage in the manifest and
+redoes at most the stage it was in; a half-written stage is never listed as an artifact.
 """
 
 from __future__ import annotations
@@ -28,9 +29,16 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal, Protocol
 
+from service.blobstore import Storage, make_storage
 from service.settings import Settings
 from service.store import Lease, Store
-from worker.contract import MANIFEST, JobPaths, UploadPaths
+from worker.workspace import (
+    CommitRefused,
+    ScratchFull,
+    Workspace,
+    open_workspace,
+)
+from worker.workspace import read_manifest as read_manifest
 
 logger = logging.getLogger(__name__)
 
@@ -176,20 +184,6 @@ def _key_hash(key: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
 
 
-def read_manifest(paths: JobPaths) -> dict[str, Any]:
-    try:
-        data: dict[str, Any] = json.loads(paths.manifest.read_text(encoding="utf-8"))
-        return data
-    except FileNotFoundError:
-        return {"version": MANIFEST_VERSION, "job_id": paths.job_id, "stages": []}
-
-
-def write_manifest(paths: JobPaths, manifest: dict[str, Any]) -> None:
-    tmp = paths.output / f".{MANIFEST}.tmp"
-    tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True), encoding="utf-8")
-    os.replace(tmp, paths.manifest)
-
-
 class Heartbeat:
     """A thread refreshing the job's lease and noticing cancel requests while a stage runs."""
 
@@ -228,13 +222,15 @@ class _Runner:
         self,
         store: Store,
         settings: Settings,
-        paths: JobPaths,
+        job_id: str,
+        workspace: Workspace,
         stages: Sequence[Stage],
         heartbeat: Heartbeat,
         interrupt: Callable[[], bool],
         watchdog: StageWatchdog | None = None,
     ) -> None:
-        self.store, self.settings, self.paths = store, settings, paths
+        self.store, self.settings, self.job_id = store, settings, job_id
+        self.workspace = workspace
         self.stages, self.heartbeat, self.interrupt = stages, heartbeat, interrupt
         self.watchdog = watchdog
         self._last_report = 0.0
@@ -275,7 +271,7 @@ class _Runner:
             return
         self._last_report = now
         overall = (index + max(0.0, min(1.0, fraction))) / len(self.stages)
-        job_id = self.paths.job_id
+        job_id = self.job_id
         stage = (name, index, len(self.stages))
         worker = self.heartbeat.worker
         self.heartbeat.update(self.store.report_progress(job_id, worker, stage, overall, message))
@@ -285,16 +281,14 @@ class _Runner:
         self.report(name, index, fraction, message, False)
 
     def _log(self, name: str, message: str) -> None:
-        self.store.log(self.paths.job_id, message, stage=name)
+        self.store.log(self.job_id, message, stage=name)
 
-    def run(self, input_root: Path, config: dict[str, Any], parent: JobPaths | None) -> None:
-        self.paths.output.mkdir(parents=True, exist_ok=True)
-        for stale in self.paths.output.glob(".tmp-*"):
-            shutil.rmtree(stale, ignore_errors=True)
-        manifest = read_manifest(self.paths)
+    def run(self, input_root: Path, config: dict[str, Any], parent_id: str | None) -> None:
+        workspace = self.workspace
+        manifest = workspace.manifest()
         finished = {s["name"] for s in manifest["stages"]}
-        parent_stages = {s["name"]: s for s in read_manifest(parent)["stages"]} if parent else {}
-        job_id = self.paths.job_id
+        parent_stages = {s["name"]: s for s in workspace.parent_manifest()["stages"]}
+        job_id = self.job_id
         for index, stage in enumerate(self.stages):
             if stage.name in finished:
                 self.store.log(job_id, f"{stage.name}: already finished", stage=stage.name)
@@ -303,9 +297,10 @@ class _Runner:
             self._start_clock(stage.name)
             self.report(stage.name, index, 0.0, f"{stage.name}: started", force=True)
             key = _key_hash(stage.key(config))
-            tmp = self.paths.output / f".tmp-{stage.name}-{uuid.uuid4().hex[:8]}"
+            tmp = workspace.output / f".tmp-{stage.name}-{uuid.uuid4().hex[:8]}"
             tmp.mkdir()
-            outcome = _reuse_parent_stage(parent, parent_stages.get(stage.name), key, tmp)
+            entry = parent_stages.get(stage.name)
+            outcome = _reuse_parent_stage(workspace, entry, key, tmp, parent_id)
             if outcome is None:
                 ctx = StageContext(
                     job_id=job_id,
@@ -314,81 +309,61 @@ class _Runner:
                     settings=self.settings,
                     progress=functools.partial(self._progress, stage.name, index),
                     log=functools.partial(self._log, stage.name),
-                    output_root=self.paths.output,
+                    output_root=workspace.output,
                 )
                 outcome = stage.run(ctx, tmp)
             self._stop_clock()
             # a worker that lost its lease or was canceled must not commit; a shutdown must
             # not discard a finished stage: it is committed, the next report interrupts
             self.check(interrupt=False)
-            manifest["stages"].append(self._commit(stage.name, index, key, tmp, outcome))
-            write_manifest(self.paths, manifest)
+            workspace.commit(_entry(stage.name, index, key, tmp, outcome), tmp, manifest)
             message = outcome.message or f"{stage.name}: {outcome.status}"
             self.report(stage.name, index, 1.0, message, force=True)
 
-    def _commit(
-        self, name: str, index: int, key: str, tmp: Path, outcome: StageOutcome
-    ) -> dict[str, Any]:
-        files = {
-            f"{name}/{path.relative_to(tmp).as_posix()}": {
-                "size": path.stat().st_size,
-                "sha256": _sha256(path),
-            }
-            for path in sorted(tmp.rglob("*"))
-            if path.is_file()
+
+def _entry(name: str, index: int, key: str, tmp: Path, outcome: StageOutcome) -> dict[str, Any]:
+    """The manifest entry of stage ``name`` whose files are in ``tmp``."""
+    files = {
+        f"{name}/{path.relative_to(tmp).as_posix()}": {
+            "size": path.stat().st_size,
+            "sha256": _sha256(path),
         }
-        final = self.paths.output / name
-        if final.exists():  # left by a crash between rename and manifest write
-            shutil.rmtree(final)
-        os.rename(tmp, final)
-        return {
-            "name": name,
-            "index": index,
-            "key": key,
-            "status": outcome.status,
-            "message": outcome.message,
-            "details": outcome.details,
-            "files": files,
-            "finished_at": datetime.now(UTC).isoformat(),
-        }
+        for path in sorted(tmp.rglob("*"))
+        if path.is_file()
+    }
+    return {
+        "name": name,
+        "index": index,
+        "key": key,
+        "status": outcome.status,
+        "message": outcome.message,
+        "details": outcome.details,
+        "files": files,
+        "finished_at": datetime.now(UTC).isoformat(),
+    }
 
 
 def _reuse_parent_stage(
-    parent: JobPaths | None, entry: dict[str, Any] | None, key: str, tmp: Path
+    workspace: Workspace, entry: dict[str, Any] | None, key: str, tmp: Path, parent_id: str | None
 ) -> StageOutcome | None:
-    """Link the parent's finished stage into ``tmp`` when its key matches, or return None to
+    """Put the parent's finished stage into ``tmp`` when its key matches, or return None to
     run the stage. Also None when a file of the parent's manifest entry is gone or changed
     (the parent was deleted meanwhile): the stage is redone rather than recorded empty."""
-    if parent is None or entry is None or entry.get("key") != key or entry["status"] != "done":
+    if entry is None or entry.get("key") != key or entry["status"] != "done":
         return None
     try:
-        _link_files(parent.output, entry["files"], entry["name"], tmp)
+        workspace.reuse(entry, tmp)
     except (OSError, ValueError) as error:
         logger.warning(
             "stage %s of parent job %s cannot be reused (%s); running it",
             entry["name"],
-            parent.job_id,
+            parent_id,
             error,
         )
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir()
         return None
-    return StageOutcome("done", f"reused from job {parent.job_id}", {"reused": True})
-
-
-def _link_files(source: Path, files: dict[str, Any], name: str, dest: Path) -> None:
-    """Hard-link (or copy) each manifest file ``<name>/<path>`` of ``source`` to
-    ``dest/<path>``; ValueError when a linked file's size differs from the manifest's."""
-    for entry, meta in files.items():
-        relative = Path(entry).relative_to(name)
-        target = dest / relative
-        target.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            os.link(source / entry, target)
-        except OSError:  # another filesystem, say (a vanished file fails the copy too)
-            shutil.copy2(source / entry, target)
-        if target.stat().st_size != meta["size"]:
-            raise ValueError(f"{entry} is {target.stat().st_size} bytes, not {meta['size']}")
+    return StageOutcome("done", f"reused from job {parent_id}", {"reused": True})
 
 
 def worker_id_prefix(pid: int) -> str:
@@ -421,6 +396,9 @@ def error_body(
         ]
         detail = "; ".join(f"{e['path']}: {e['reason']}" for e in errors)
         return {"type": "invalid-input", "detail": detail, "errors": errors}
+    if isinstance(error, ScratchFull):
+        logger.warning("job %s: %s", job_id, error)
+        return {"type": "scratch-full", "detail": str(error)}
     if isinstance(error, StageTimeout):
         logger.warning("job %s: %s", job_id, error)
         return {"type": "timeout", "detail": str(error)}
@@ -452,6 +430,7 @@ def execute_job(
     worker_id: str | None = None,
     interrupt: Callable[[], bool] | None = None,
     kill: Callable[[], None] | None = None,
+    storage: Storage | None = None,
 ) -> str:
     """Claim and run a job; returns its final status, ``skipped``, ``interrupted`` or ``lost``.
 
@@ -466,6 +445,7 @@ def execute_job(
         kill: ends this process; called after the job is failed when a stage runs
             ``stage_kill_grace_s`` past its limit without a progress report (None: the stuck
             stage is abandoned, in a thread that cannot be stopped).
+        storage: where uploads and outputs live (default: from the settings).
     """
     worker = worker_id or default_worker_id()
     job = store.claim_job(job_id, worker, timedelta(seconds=3 * settings.heartbeat_s))
@@ -477,30 +457,45 @@ def execute_job(
 
         stages = default_stages()
     upload = store.get_upload(job.upload_id, job.tenant_id)
-    paths = JobPaths(settings.storage_dir, job_id)
-    parent = JobPaths(settings.storage_dir, job.parent_job_id) if job.parent_job_id else None
+    storage = storage or make_storage(settings)
     overrun = _overrun(store, job_id, worker, kill)
     input_root: Path | None = None
     with (
         Heartbeat(store, job_id, worker, settings.heartbeat_s) as heartbeat,
         StageWatchdog(settings.stage_kill_grace_s, overrun) as watchdog,
     ):
+
+        def lease_check() -> None:
+            """Before writing to shared storage: is the lease still this worker's?"""
+            heartbeat.update(store.heartbeat(job_id, worker))
+            if heartbeat.state == "lost":
+                raise LeaseLost()
+
+        workspace = open_workspace(
+            storage, settings, job.tenant_id, job_id, job.parent_job_id, lease_check
+        )
         runner = _Runner(
-            store, settings, paths, stages, heartbeat, interrupt or (lambda: False), watchdog
+            store,
+            settings,
+            job_id,
+            workspace,
+            stages,
+            heartbeat,
+            interrupt or (lambda: False),
+            watchdog,
         )
         try:
             if upload is None:
                 raise FileNotFoundError(f"upload {job.upload_id} is gone")
-            data = UploadPaths(settings.storage_dir, upload.id).data
             digests = upload.summary.get("digests") or {"upload": upload.id}
             config = {**job.config, "inputs": digests}
-            input_root = data / str(upload.summary.get("root", "."))
-            runner.run(input_root, config, parent)
+            input_root = workspace.inputs(upload)
+            runner.run(input_root, config, job.parent_job_id)
         except Canceled:
             return _finish(store, job_id, worker, "canceled", None)
         except Interrupted:
             return _interrupted(store, job_id, worker, heartbeat)
-        except LeaseLost:
+        except (LeaseLost, CommitRefused):
             if watchdog.fired is not None:  # the watchdog failed the job; its stage returned
                 return "failed"
             logger.warning("job %s was taken over by another worker; stopping", job_id)
@@ -509,6 +504,8 @@ def execute_job(
             if watchdog.fired is not None:
                 return "failed"
             return _finish(store, job_id, worker, "failed", error_body(error, job_id, input_root))
+        finally:
+            workspace.close()
     return _finish(store, job_id, worker, "succeeded", None)
 
 

@@ -63,6 +63,7 @@ class ReconstructStage:
             "preset": config.get("preset"),
             "capture": options.get("capture", {}),
             "reconstruct": options.get("reconstruct", {}),
+            "budget": options.get("budget", {}),
             "capture_sha256": config.get("inputs", {}).get("capture"),
             "upload": config.get("inputs", {}).get("upload"),
         }
@@ -81,6 +82,7 @@ class ReconstructStage:
             options,
             pipeline.reconstruct,
             out,
+            budget=pipeline.budget,
             device=ctx.settings.device,
             on_progress=on_progress,
             report_name="metrics.json",

@@ -54,6 +54,35 @@ def add_capture_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def parse_cap(text: str) -> int | str:
+    """An integer (``640``) or a word (``native``, ``all``); the config builder checks which."""
+    return int(text) if text.strip().lstrip("-").isdigit() else text.strip().lower()
+
+
+def add_budget_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--max-side N|native --keyframes N|all`` (the preset's frame budget otherwise)."""
+    group = parser.add_argument_group("frame budget (default: the preset's)")
+    group.add_argument(
+        "--max-side",
+        type=parse_cap,
+        help="train at the capture's resolution divided by the smallest integer factor that "
+        "brings its longer side to at most N pixels; native = full resolution "
+        "(fast 640, paper 1600); outputs stay at the capture's resolution",
+    )
+    group.add_argument(
+        "--keyframes",
+        type=parse_cap,
+        help="train on at most N keyframes chosen by camera motion, evenly spaced; "
+        "all = every frame that moved (fast 200, paper 1000)",
+    )
+
+
+def budget_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``budget`` job options of the flags added by :func:`add_budget_options` (given only)."""
+    given = {"max_side": args.max_side, "max_frames": args.keyframes}
+    return {key: value for key, value in given.items() if value is not None}
+
+
 FLAGS = {
     "capture.stride": "--stride",
     "capture.max_frames": "--max-frames",
@@ -64,6 +93,8 @@ FLAGS = {
     "segment.scale": "--scale",
     "segment.matcher": "--matcher",
     "segment.seed": "--seed",
+    "budget.max_side": "--max-side",
+    "budget.max_frames": "--keyframes",
 }
 """The flag of each job option the CLI sets (named in error messages)."""
 

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from dcseg.cli._options import build, capture_fields
+from dcseg.cli._options import budget_fields, build, capture_fields
 from dcseg.config import DEFAULT_SCALE, CaptureOptions, PipelineConfig
 
 log = logging.getLogger("dcseg")
@@ -46,9 +46,10 @@ def add_output_options(parser: argparse.ArgumentParser) -> None:
 
 
 def job_config(args: argparse.Namespace) -> tuple[PipelineConfig, CaptureOptions]:
-    """The configs of ``--preset --scale --matcher --seed`` and the capture flags."""
+    """The configs of ``--preset --scale --matcher --seed``, the capture and budget flags."""
     segment = {"scale": args.scale, "matcher": args.matcher, "seed": args.seed}
-    return build(args.preset, {"capture": capture_fields(args), "segment": segment})
+    options = {"capture": capture_fields(args), "segment": segment, "budget": budget_fields(args)}
+    return build(args.preset, options)
 
 
 def run_reporting(job: Job, args: argparse.Namespace) -> int:

@@ -8,7 +8,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from dcseg.cli._options import add_capture_options, build, capture_fields
+from dcseg.cli._options import (
+    add_budget_options,
+    add_capture_options,
+    budget_fields,
+    build,
+    capture_fields,
+)
 from dcseg.cli._pipeline import add_device_option
 
 log = logging.getLogger(__name__)
@@ -36,11 +42,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--backend", help="renderer backend (default: the renderer's choice)")
     add_device_option(parser)
     add_capture_options(parser)
+    add_budget_options(parser)
     parser.set_defaults(run=run)
 
 
 def _config(args: argparse.Namespace) -> tuple[Any, Any]:
-    """``(ReconstructConfig, CaptureOptions)`` through the one config builder."""
+    """``(PipelineConfig, CaptureOptions)`` through the one config builder."""
     overrides = {
         "iterations": args.iterations,
         "holdout": args.holdout,
@@ -50,11 +57,14 @@ def _config(args: argparse.Namespace) -> tuple[Any, Any]:
         "backend": args.backend,
     }
     chosen = {key: value for key, value in overrides.items() if value is not None}
-    options = {"reconstruct": chosen, "capture": capture_fields(args)}
+    options = {
+        "reconstruct": chosen,
+        "capture": capture_fields(args),
+        "budget": budget_fields(args),
+    }
     if args.seed is not None:
         options["segment"] = {"seed": args.seed}
-    cfg, capture = build(args.preset, options)
-    return cfg.reconstruct, capture
+    return build(args.preset, options)
 
 
 def _progress_bar(total: int) -> tuple[Any, Any]:
@@ -74,12 +84,19 @@ def run(args: argparse.Namespace) -> int:
     from dcseg.errors import InputError
     from dcseg.reconstruct.job import reconstruct_job
 
-    cfg, options = _config(args)
+    pipeline, options = _config(args)
+    cfg = pipeline.reconstruct
     bar, on_progress = _progress_bar(cfg.iterations)
     try:
         with bar:
             report = reconstruct_job(
-                args.capture, options, cfg, args.out, device=args.device, on_progress=on_progress
+                args.capture,
+                options,
+                cfg,
+                args.out,
+                budget=pipeline.budget,
+                device=args.device,
+                on_progress=on_progress,
             )
     except InputError as error:
         for problem in error.problems:

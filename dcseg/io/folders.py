@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from dcseg.errors import Problem
@@ -42,3 +43,32 @@ def entries_by_stem(
         if len(paths) > 1
     ]
     return {s: p[0] for s, p in by_stem.items() if len(p) == 1}, problems
+
+
+@dataclass(frozen=True)
+class FrameSelection:
+    """The frames whose entries a reader reads (a run's keyframes, :mod:`dcseg.io.captures.plan`).
+
+    Attributes:
+        read: the frames read; entries of other frames are skipped without being decoded.
+        listed: every frame of the capture; an entry of a frame outside it is a problem.
+            None = not checked.
+    """
+
+    read: frozenset[str]
+    listed: frozenset[str] | None = None
+
+    def pick(
+        self, entries: dict[str, Path], folder: Path, what: str
+    ) -> tuple[dict[str, Path], list[Problem]]:
+        """The entries of the frames read, and a problem naming entries of unknown frames."""
+        problems = []
+        if self.listed is not None:
+            extra = sorted(set(entries) - self.listed)
+            if extra:
+                shown = ", ".join(extra[:5]) + (" ..." if len(extra) > 5 else "")
+                where = display_path(folder, folder.parent)
+                problems.append(Problem(where, f"{what} for frames the capture lacks: {shown}"))
+        kept = {stem: path for stem, path in entries.items() if stem in self.read}
+        logger.debug("%s: reading %d of %d entries", folder, len(kept), len(entries))
+        return kept, problems

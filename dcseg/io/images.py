@@ -158,7 +158,7 @@ def header_pixels(path: Path) -> int | None:
     """How many pixels (or ``.npy`` values) decoding ``path`` gives, read from its header only.
 
     Args:
-        path: a PNG, JPEG, TIFF or ``.npy`` file.
+        path: a PNG, JPEG, TIFF, OpenEXR or ``.npy`` file.
 
     Returns:
         ``width * height`` (the element count for ``.npy``), or None when the header is not
@@ -169,7 +169,12 @@ def header_pixels(path: Path) -> int | None:
             return int(np.load(path, mmap_mode="r", allow_pickle=False).size)
         except (OSError, ValueError, EOFError):
             return None
-    size = image_size(path)
+    if path.suffix.lower() == ".exr":
+        from dcseg.io.exr import exr_size  # the EXR reader imports this module
+
+        size = exr_size(path)
+    else:
+        size = image_size(path)
     return None if size is None else size[0] * size[1]
 
 

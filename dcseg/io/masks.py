@@ -27,7 +27,7 @@ import pycocotools.mask as mask_util
 from numpy.typing import NDArray
 
 from dcseg.errors import InputError, Problem
-from dcseg.io.folders import entries_by_stem
+from dcseg.io.folders import FrameSelection, entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest
 from dcseg.types import AgnosticMasks
 
@@ -180,13 +180,14 @@ def write_agnostic_json(path: Path, masks: AgnosticMasks) -> None:
 
 
 def read_agnostic_masks(
-    folder: Path, *, size: tuple[int, int] | None = None
+    folder: Path, *, size: tuple[int, int] | None = None, frames: FrameSelection | None = None
 ) -> dict[str, AgnosticMasks]:
     """Read every frame's class-agnostic masks from a folder (formats: see the module docstring).
 
     Args:
         folder: the mask folder.
         size: optional target ``(width, height)``; masks are rescaled with nearest neighbour.
+        frames: read only these frames' masks (a run's keyframes); None = every entry.
 
     Returns:
         Masks keyed by frame stem, in sorted stem order. An empty SAM JSON list gives no masks
@@ -199,6 +200,9 @@ def read_agnostic_masks(
     if not folder.is_dir():
         raise InputError.single(str(folder), "mask folder not found (or not a folder)")
     entries, problems = _mask_entries(folder)
+    if frames is not None:
+        entries, extra = frames.pick(entries, folder, "masks")
+        problems.extend(extra)
     out: dict[str, AgnosticMasks] = {}
     for stem, entry in sorted(entries.items()):
         try:

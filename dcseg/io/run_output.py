@@ -17,7 +17,6 @@ so a crashed run never leaves a half-written output)::
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 from collections.abc import Iterable, Mapping, Sequence
@@ -38,7 +37,8 @@ from dcseg.io.exports import (
     write_preview,
     write_view_maps,
 )
-from dcseg.io.images import read_image, write_png
+from dcseg.io.images import read_image, resize_nearest, write_png
+from dcseg.io.jsonfile import write_json
 from dcseg.io.ply import read_gaussians_ply, write_gaussians_ply
 from dcseg.io.run_state import (
     BlendMemory,
@@ -98,12 +98,16 @@ def write_outputs(
     segmentation: Segmentation,
     vocabulary: Vocabulary,
     previews: Sequence[tuple[str, NDArray[np.uint8]]],
+    *,
+    size: tuple[int, int] | None = None,
 ) -> None:
     """Write every export of a segmentation into ``out`` (an existing, empty folder).
 
     The object level is what apps get: ``instance_id`` (PLY), ``instances.json`` and
     ``masks/``; the cluster level stays in the PLY's ``cluster_id`` (and ``state/clusters.npz``,
-    :func:`save_clusters`).
+    :func:`save_clusters`). ``size`` is the capture's ``(width, height)``: per-view masks and
+    labels are brought to it with nearest neighbour when the views were trained at a lower
+    resolution (None = as is).
     """
     g = trained.gaussians
     write_gaussians_ply(out / "scene.ply", g)
@@ -123,7 +127,10 @@ def write_outputs(
     write_instances_json(out / "instances.json", records, out / "scene_labelled.ply")
     write_labels_json(out / "labels.json", vocabulary)
     for name, ids in instance_maps.items():
-        write_view_maps(out, name, ids, segmentation.label_maps[name])
+        classes = segmentation.label_maps[name]
+        if size is not None:
+            ids, classes = resize_nearest(ids, size), resize_nearest(classes, size)
+        write_view_maps(out, name, ids, classes)
     sheet = [(rgb, instance_maps[name], segmentation.label_maps[name]) for name, rgb in previews]
     if sheet:
         write_preview(out / "preview.png", sheet, segmentation.n_instances, vocabulary)
@@ -213,8 +220,12 @@ def load_run(run: Path) -> SavedRun:
     return SavedRun(trained, semantic, vocabulary, previews, record)
 
 
-def load_labels(run: Path, names: Sequence[str]) -> Labels:
-    """Read a run's exported labels back: ``semantic_id`` per Gaussian and ``labels/`` maps."""
+def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = None) -> Labels:
+    """Read a run's exported labels back: ``semantic_id`` per Gaussian and ``labels/`` maps.
+
+    ``size``: the views' ``(width, height)``; maps written at the capture's resolution are
+    brought back to it with nearest neighbour (exact for the integer factors of a plan).
+    """
     path = run / "scene_labelled.ply"
     try:
         vertex = PlyData.read(str(path))["vertex"]
@@ -222,23 +233,6 @@ def load_labels(run: Path, names: Sequence[str]) -> Labels:
     except (OSError, ValueError, KeyError) as error:
         raise InputError.single(str(path), f"cannot read semantic_id: {error}") from None
     maps = {n: read_image(run / "labels" / f"{n}.png").astype(np.int64) - 1 for n in names}
+    if size is not None:
+        maps = {n: resize_nearest(m, size) for n, m in maps.items()}
     return Labels(semantic_ids, maps)
-
-
-def write_json(path: Path, body: Any) -> None:
-    """Write JSON with NaN/inf as null (strict JSON for every client)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_finite(body), indent=1, allow_nan=False)
-    path.write_text(text + "\n", encoding="utf-8")
-
-
-def _finite(value: Any) -> Any:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    if isinstance(value, np.generic):
-        return _finite(value.item())
-    return value

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.errors import InputError, Problem
-from dcseg.io.folders import entries_by_stem
+from dcseg.io.folders import FrameSelection, entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest, write_image
 from dcseg.types import SemanticMap, Vocabulary
 
@@ -130,7 +130,11 @@ def _vocabulary_problems(entries: list[tuple[int, Any]], shown: str, unit: str) 
 
 
 def read_semantic_maps(
-    folder: Path, vocabulary: Vocabulary, *, size: tuple[int, int] | None = None
+    folder: Path,
+    vocabulary: Vocabulary,
+    *,
+    size: tuple[int, int] | None = None,
+    frames: FrameSelection | None = None,
 ) -> dict[str, SemanticMap]:
     """Read every frame's class map from a folder of ``.png`` / ``.npy`` files.
 
@@ -138,6 +142,7 @@ def read_semantic_maps(
         folder: the folder of class maps, one per frame stem.
         vocabulary: the classes the maps index into; indices must be ``< len(vocabulary)``.
         size: optional target ``(width, height)``; maps are rescaled with nearest neighbour.
+        frames: read only these frames' maps (a run's keyframes); None = every file.
 
     Returns:
         Maps keyed by frame stem (sorted), ``[H, W]`` int32 with ``-1`` = unlabelled.
@@ -147,7 +152,7 @@ def read_semantic_maps(
     """
     out: dict[str, SemanticMap] = {}
     problems: list[Problem] = []
-    for item in iter_semantic_maps(folder, vocabulary, size=size):
+    for item in iter_semantic_maps(folder, vocabulary, size=size, frames=frames):
         if isinstance(item, Problem):
             problems.append(item)
         else:
@@ -158,7 +163,11 @@ def read_semantic_maps(
 
 
 def iter_semantic_maps(
-    folder: Path, vocabulary: Vocabulary, *, size: tuple[int, int] | None = None
+    folder: Path,
+    vocabulary: Vocabulary,
+    *,
+    size: tuple[int, int] | None = None,
+    frames: FrameSelection | None = None,
 ) -> Iterator[SemanticMap | Problem]:
     """Like :func:`read_semantic_maps`, one map at a time (for checks that must not hold them
     all); each problem is yielded in place of the map it concerns.
@@ -169,6 +178,9 @@ def iter_semantic_maps(
     if not folder.is_dir():
         raise InputError.single(str(folder), "semantic map folder not found (or not a folder)")
     entries, problems = _map_entries(folder)
+    if frames is not None:
+        entries, extra = frames.pick(entries, folder, "class maps")
+        problems.extend(extra)
     yield from problems
     for stem, path in sorted(entries.items()):
         try:

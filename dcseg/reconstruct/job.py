@@ -20,7 +20,7 @@ import numpy
 import torch
 
 from dcseg import __version__
-from dcseg.config import CaptureOptions
+from dcseg.config import NATIVE_BUDGET, CaptureOptions, FrameBudget
 from dcseg.devices import resolve_device
 from dcseg.errors import InputError
 from dcseg.gaussians import Gaussians
@@ -66,23 +66,28 @@ def reconstruct_job(
     cfg: ReconstructConfig,
     out: Path,
     *,
+    budget: FrameBudget = NATIVE_BUDGET,
     device: str = "auto",
     on_progress: StepProgress | None = None,
     report_name: str = "reconstruction.json",
 ) -> dict[str, Any]:
     """Read a capture, reconstruct it and write ``out/scene.ply`` and ``out/<report_name>``.
 
+    Only the frames ``budget`` selects are read, at its working resolution
+    (:mod:`dcseg.io.captures.plan`); the report's ``capture`` records that choice.
+
     Returns:
         The report, with read/write timings, the peak memory and the library versions.
     """
-    from dcseg.io.captures import read_capture
+    from dcseg.io.captures import read_planned
     from dcseg.io.ply import write_gaussians_ply
 
     where = device_of(device)
     start = time.perf_counter()
-    capture = read_capture(capture_path, options)
+    capture, plan = read_planned(capture_path, options, budget)
     read_s = time.perf_counter() - start
     gaussians, report = reconstruct_scene(capture, cfg, where, on_progress)
+    report["capture"] = plan.summary()
     start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     write_gaussians_ply(out / "scene.ply", gaussians)

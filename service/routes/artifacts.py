@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from datetime import timedelta
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Response
@@ -10,35 +12,40 @@ from fastapi.responses import StreamingResponse
 from service import artifacts
 from service.deps import StateDep, TenantDep
 from service.jobs import etag_matches
+from service.models import utcnow
 from service.problems import ApiProblem, problem_responses
 from service.schemas import ArtifactPublic, ArtifactsPublic
-from worker.contract import JobPaths
 
 router = APIRouter(prefix="/v1/jobs", tags=["artifacts"])
 
 
-def _output(job_id: str, state: StateDep, tenant: str) -> JobPaths:
+def _check_job(job_id: str, state: StateDep, tenant: str) -> None:
     if state.store.get_job(job_id, tenant) is None:
         raise ApiProblem(404, f"no job {job_id!r}", slug="not-found", job_id=job_id)
-    return JobPaths(state.settings.storage_dir, job_id)
 
 
 @router.get(
     "/{job_id}/artifacts", response_model=ArtifactsPublic, responses=problem_responses(401, 404)
 )
 def list_artifacts(job_id: str, state: StateDep, tenant: TenantDep) -> ArtifactsPublic:
-    """The files of the job's finished stages (immutable once listed)."""
-    paths = _output(job_id, state, tenant)
-    items = [
-        ArtifactPublic(
-            name=a.name,
-            media_type=a.media_type,
-            size=a.size,
-            sha256=a.sha256,
-            url=f"/v1/jobs/{job_id}/artifacts/{a.name}",
+    """The files of the job's finished stages (immutable once listed). With object storage
+    each also has a presigned ``download_url`` valid for ``DCSEG_PRESIGN_EXPIRY_S``."""
+    _check_job(job_id, state, tenant)
+    expires = utcnow() + timedelta(seconds=state.settings.presign_expiry_s)
+    items = []
+    for a in artifacts.list_artifacts(state.storage, tenant, job_id):
+        presigned = state.storage.presign(tenant, a.item)
+        items.append(
+            ArtifactPublic(
+                name=a.name,
+                media_type=a.media_type,
+                size=a.size,
+                sha256=a.sha256,
+                url=f"/v1/jobs/{job_id}/artifacts/{a.name}",
+                download_url=presigned,
+                download_url_expires_at=expires if presigned else None,
+            )
         )
-        for a in artifacts.list_artifacts(paths.output)
-    ]
     return ArtifactsPublic(artifacts=items)
 
 
@@ -49,7 +56,8 @@ IfNoneMatch = Annotated[str | None, Header()]
 
 
 def _find(job_id: str, name: str, state: StateDep, tenant: str) -> artifacts.Artifact:
-    found = artifacts.find_artifact(_output(job_id, state, tenant).output, name)
+    _check_job(job_id, state, tenant)
+    found = artifacts.find_artifact(state.storage, tenant, job_id, name)
     if found is None:
         raise ApiProblem(404, f"job {job_id} has no artifact {name!r}", slug="not-found")
     return found
@@ -80,11 +88,21 @@ def download_artifact(
 ) -> Response:
     """Download one artifact; honours ``Range: bytes=a-b``, ``If-Range`` and ``If-None-Match``
     (``*`` and weak tags match)."""
-    return send_file(_find(job_id, name, state, tenant), range_header, if_range, if_none_match)
+    found = _find(job_id, name, state, tenant)
+
+    def read(start: int, end: int) -> Iterator[bytes]:
+        return state.storage.read(tenant, found.item, start, end)
+
+    return send_file(found, read, range_header, if_range, if_none_match)
+
+
+Reader = Callable[[int, int], Iterator[bytes]]
+"""Bytes ``start..end`` (inclusive) of the file being sent, in chunks."""
 
 
 def send_file(
     found: artifacts.Artifact,
+    read: Reader,
     range_header: str | None,
     if_range: str | None,
     if_none_match: str | None,
@@ -96,13 +114,13 @@ def send_file(
     use_range = if_range is None or if_range.strip() == found.etag
     span = artifacts.parse_range(range_header, found.size) if use_range else None
     if span is None:
-        body = artifacts.read_bytes(found.path, 0, found.size - 1)
+        body = read(0, found.size - 1)
         headers["Content-Length"] = str(found.size)
         return StreamingResponse(body, media_type=found.media_type, headers=headers)
     start, end = span
     headers["Content-Range"] = f"bytes {start}-{end}/{found.size}"
     headers["Content-Length"] = str(end - start + 1)
-    body = artifacts.read_bytes(found.path, start, end)
+    body = read(start, end)
     return StreamingResponse(body, status_code=206, media_type=found.media_type, headers=headers)
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import tempfile
 
 import anyio
 import anyio.to_thread
@@ -37,10 +36,9 @@ def _checks(state: AppState) -> dict[str, str]:
     except Exception as error:
         checks["database"] = f"error: {type(error).__name__}"
     try:
-        with tempfile.TemporaryFile(dir=state.settings.storage_dir):
-            pass
+        state.storage.check()
         checks["storage"] = "ok"
-    except OSError as error:
+    except Exception as error:
         checks["storage"] = f"error: {type(error).__name__}"
     if state.settings.broker_url:
         try:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import shutil
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Query, Response
@@ -14,6 +13,7 @@ from sqlalchemy.exc import IntegrityError
 from dcseg.errors import InputError
 from dcseg.options import build_config, check_size
 from service.deps import AppState, StateDep, TenantDep
+from service.exports import remove_cached
 from service.idempotency import IdempotencyKeyHeader, idempotent
 from service.jobs import (
     decode_page_token,
@@ -28,7 +28,7 @@ from service.models import Job
 from service.problems import ApiProblem, problem_responses
 from service.schemas import JobCreate, JobPublic, JobsPublic, JobStatus
 from service.store import Conflict, Cursor, TooManyJobs, new_id
-from worker.contract import TERMINAL, JobPaths
+from worker.contract import TERMINAL
 
 logger = logging.getLogger(__name__)
 
@@ -238,6 +238,6 @@ async def delete_job(job_id: str, state: StateDep, tenant: TenantDep) -> Respons
         raise ApiProblem(409, conflict.detail, slug="job-unfinished", job_id=job_id) from None
     if job is None:
         raise _not_found(job_id)
-    folder = JobPaths(state.settings.storage_dir, job_id).folder
-    await run_in_threadpool(shutil.rmtree, folder, True)
+    await run_in_threadpool(state.storage.remove_job, tenant, job_id)
+    await run_in_threadpool(remove_cached, state.settings, job_id)
     return Response(status_code=204)

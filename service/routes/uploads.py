@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -95,16 +94,14 @@ async def _store(request: Request, state: AppState, tmp: Path, record: Upload) -
     """Extract and validate in the pool, check room for it, then move it into place."""
     pool = uploads.validation_pool(request.app.state, state.settings)
     summary, stored = await pool.run(uploads.prepare, tmp / "archive", tmp / "data", state.settings)
-    check = partial(uploads.check_room, state.store, state.settings, record.tenant_id)
+    check = partial(uploads.check_room, state, record.tenant_id)
     await run_in_threadpool(partial(check, stored, written=True))
-    (tmp / "archive").unlink()
-    folder = UploadPaths(state.settings.storage_dir, record.id).folder
-    os.rename(tmp, folder)
+    await run_in_threadpool(state.storage.keep_upload, record.tenant_id, record.id, tmp)
     record.summary, record.stored_bytes = summary, stored
     try:
         await run_in_threadpool(state.store.add_upload, record)
     except BaseException:
-        uploads.remove(folder)
+        await run_in_threadpool(state.storage.remove_upload, record.tenant_id, record.id)
         raise
     return record
 
@@ -154,7 +151,7 @@ async def create_upload(
     if content_length is not None and content_length > state.settings.max_upload_bytes:
         raise uploads.too_large(state.settings.max_upload_bytes)
     with uploads.validation_pool(request.app.state, state.settings).admit():
-        check = partial(uploads.check_room, state.store, state.settings, tenant)
+        check = partial(uploads.check_room, state, tenant)
         await run_in_threadpool(check, content_length or 0)
         upload_id = new_id()
         folder = UploadPaths(state.settings.storage_dir, upload_id).folder
@@ -187,6 +184,5 @@ async def delete_upload(upload_id: str, state: StateDep, tenant: TenantDep) -> R
         raise ApiProblem(409, str(in_use), slug="upload-in-use") from None
     if upload is None:
         raise ApiProblem(404, f"no upload {upload_id!r}", slug="not-found")
-    folder = UploadPaths(state.settings.storage_dir, upload_id).folder
-    await run_in_threadpool(uploads.remove, folder)
+    await run_in_threadpool(state.storage.remove_upload, tenant, upload_id)
     return Response(status_code=204)

@@ -112,6 +112,18 @@ def test_cli_refuses_out_of_range_values_naming_the_flag(tmp_path: Path, capsys)
         main([*args, "--size", "90000x10"])
     with pytest.raises(SystemExit, match=r"--depth-trunc"):
         main([*args, "--depth-trunc", "inf"])
+    with pytest.raises(SystemExit, match=r"--min-confidence \(options.capture.min_confidence\)"):
+        main([*args, "--min-confidence", "3"])
+
+
+def test_min_confidence_is_bounded_and_reaches_the_capture_options():
+    assert build_config("fast", parse_options({}))[1].min_confidence == 0
+    _, capture = build_config("fast", parse_options({"capture": {"min_confidence": 2}}))
+    assert capture.min_confidence == 2
+    for bad in (-1, 3, 1.5):
+        with pytest.raises(InputError) as caught:
+            parse_options({"capture": {"min_confidence": bad}})
+        assert [p.path for p in caught.value.problems] == ["options.capture.min_confidence"]
 
 
 @pytest.mark.parametrize("name", ["fast", "paper"])

@@ -9,7 +9,7 @@ from datetime import timedelta
 import pytest
 
 from dcseg.errors import InputError
-from service.artifacts import list_artifacts
+from service.blobstore import LocalStorage
 from tests.worker.conftest import add_job
 from tests.worker.fakes import FakeStage
 from worker.contract import JobPaths
@@ -24,7 +24,8 @@ def test_runs_stages_and_writes_manifest(store, settings):
     manifest = json.loads(paths.manifest.read_text())
     assert [s["name"] for s in manifest["stages"]] == ["one", "two"]
     assert manifest["stages"][1]["files"]["two/a/b.txt"]["size"] == 1
-    assert [a.name for a in list_artifacts(paths.output)] == ["one/out.txt", "two/a/b.txt"]
+    names = [a.name for a in LocalStorage(settings.storage_dir).files("t", job_id)]
+    assert names == ["one/out.txt", "two/a/b.txt"]
     assert not list(paths.output.glob(".tmp-*"))
     job = store.get_job(job_id)
     assert job.status == "succeeded" and job.progress == 1.0 and job.attempts == 1
@@ -53,7 +54,7 @@ def test_redelivered_job_resumes_after_last_finished_stage(store, settings):
     assert one.runs == 1 and two.runs == 2
     job = store.get_job(job_id)
     assert job.attempts == 1 and job.status == "succeeded"  # the interrupted run is no crash
-    names = [a.name for a in list_artifacts(JobPaths(settings.storage_dir, job_id).output)]
+    names = [a.name for a in LocalStorage(settings.storage_dir).files("t", job_id)]
     assert names == ["one/out.txt", "two/out.txt"]
 
 

@@ -7,6 +7,7 @@ Supported layouts (see each module's docstring for the details):
 * ``replica``: NICE-SLAM Replica, ``results/`` + ``traj.txt`` (:mod:`.replica`);
 * ``nerfstudio``: ``transforms.json`` with depth (:mod:`.nerfstudio`);
 * ``record3d``: Record3D's ``.r3d`` export, ``metadata`` + ``rgbd/`` (:mod:`.record3d`);
+* ``record3d-exr``: Record3D's "EXR + JPG" export, ``metadata.json`` + ``rgb/`` + ``depth/``;
 * ``polycam``: Polycam's raw data export, ``keyframes/`` (:mod:`.polycam`);
 * ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`).
 
@@ -21,10 +22,12 @@ import logging
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from dcseg.config import CaptureOptions
+import numpy as np
+
+from dcseg.config import NATIVE_BUDGET, CaptureOptions, FrameBudget
 from dcseg.errors import InputError
 from dcseg.io.archive import is_archive, safe_extract
 from dcseg.io.captures import (
@@ -36,10 +39,19 @@ from dcseg.io.captures import (
     scannet,
     sevenscenes,
 )
-from dcseg.io.captures.common import Listing, load_capture
+from dcseg.io.captures.common import FrameSpec, Listing, load_capture, read_colour, rel, select
+from dcseg.io.captures.plan import CaptureMeta, CapturePlan, plan_capture
+from dcseg.io.images import image_size
 from dcseg.types import Capture
 
-__all__ = ["LAYOUTS", "CaptureListing", "detect_layout", "list_capture", "read_capture"]
+__all__ = [
+    "LAYOUTS",
+    "CaptureListing",
+    "detect_layout",
+    "list_capture",
+    "read_capture",
+    "read_planned",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -57,6 +69,7 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "replica": (replica.matches, replica.list_frames, "results/+traj.txt"),
     "nerfstudio": (nerfstudio.matches, nerfstudio.list_frames, "transforms.json"),
     "record3d": (record3d.matches, record3d.list_frames, "metadata+rgbd/"),
+    "record3d-exr": (record3d.matches_exr, record3d.list_exr_frames, "metadata.json+rgb/+depth/"),
     "polycam": (polycam.matches, polycam.list_frames, "keyframes/images+cameras/"),
     "7scenes": (sevenscenes.matches, sevenscenes.list_frames, "frame-*.color.*"),
 }
@@ -71,7 +84,7 @@ def detect_layout(folder: Path) -> str:
 
     Returns:
         One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
-        ``"nerfstudio"``, ``"record3d"``, ``"polycam"``, ``"7scenes"``).
+        ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``).
 
     Raises:
         InputError: no layout's markers are found.
@@ -170,3 +183,59 @@ def read_capture(path: str | Path, options: CaptureOptions = _DEFAULT_OPTIONS) -
         return load_capture(
             listed.listing, listed.folder, listed.layout, options, shown=listed.shown
         )
+
+
+def read_planned(
+    path: str | Path, options: CaptureOptions, budget: FrameBudget = NATIVE_BUDGET
+) -> tuple[Capture, CapturePlan]:
+    """Read the frames ``budget`` selects, at its working resolution (only those are decoded).
+
+    The plan (:func:`dcseg.io.captures.plan.plan_capture`) is made from the listing: the poses
+    and the first frame's image header. ``options.size``, when given, is the capture's
+    resolution (the one outputs are written at); the budget may downscale it further.
+
+    Returns:
+        The capture (selected frames at ``plan.size``) and the plan.
+
+    Raises:
+        InputError: as :func:`read_capture`; also a ``size`` above the frames' own.
+    """
+    with list_capture(path, options) as listed:
+        specs = select(listed.listing.specs, options)
+        if not specs:  # nothing to plan: the loader reports why
+            capture = load_capture(listed.listing, listed.folder, listed.layout, options)
+            return capture, plan_capture(CaptureMeta((), np.zeros((0, 4, 4)), (1, 1)), budget)
+        size = _output_size(specs[0], listed.folder, options)
+        poses = np.stack([np.asarray(s.c2w, dtype=np.float64) for s in specs])
+        plan = plan_capture(CaptureMeta(tuple(s.name for s in specs), poses, size), budget)
+        logger.info("%s: %s", listed.shown, plan.describe())
+        chosen = replace(listed.listing, specs=[specs[i] for i in plan.frames])
+        read = replace(options, stride=1, max_frames=None, size=_read_size(plan, options))
+        capture = load_capture(chosen, listed.folder, listed.layout, read, shown=listed.shown)
+    return capture, plan
+
+
+def _output_size(spec: FrameSpec, root: Path, options: CaptureOptions) -> tuple[int, int]:
+    """``options.size`` or the first frame's own size; refuses upscaling, naming the file."""
+    native = image_size(spec.rgb)
+    if native is None:  # a format whose header we do not parse: decode the one frame
+        rgb = read_colour(spec.rgb, root)
+        native = (int(rgb.shape[1]), int(rgb.shape[0]))
+    size = options.size
+    if size is None:
+        return native
+    if size[0] > native[0] or size[1] > native[1]:
+        raise InputError.single(
+            rel(spec.rgb, root),
+            f"target size {size[0]}x{size[1]} is larger than the image's "
+            f"{native[0]}x{native[1]}; frames are only ever downscaled "
+            "(choose a smaller --size / options.capture.size)",
+        )
+    return size
+
+
+def _read_size(plan: CapturePlan, options: CaptureOptions) -> tuple[int, int] | None:
+    """The size given to the loader: None at native size (frames are then checked to agree)."""
+    if plan.factor == 1 and options.size is None:
+        return None
+    return plan.size

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
 from dcseg.io import images
+from dcseg.io.exr import read_exr_depth
 from dcseg.io.images import display_path, read_image, resize_area, resize_nearest
 from dcseg.io.lzfse_buffers import read_lzfse_array
 from dcseg.types import Capture, Frame, Intrinsics, capture_problems
@@ -293,6 +294,8 @@ def read_depth(spec: FrameSpec, root: Path) -> NDArray[np.float32]:
     if spec.depth.suffix == RAW_DEPTH_SUFFIX:
         metres = read_lzfse_array(spec.depth, shown, _raw_size(spec), np.float32)
         return np.where(np.isfinite(metres) & (metres > 0), metres, np.float32(0.0))
+    if spec.depth.suffix.lower() == ".exr":
+        return read_exr_depth(spec.depth, shown)
     raw = _read_npy(spec.depth, shown) if spec.depth.suffix == ".npy" else None
     if raw is None:
         raw = read_image(spec.depth, root=root)

@@ -108,6 +108,7 @@ def test_unknown_layout_and_bad_paths(tmp_path: Path) -> None:
     expected = (
         r"no capture layout recognised in .*: expected one of capture\.json, "
         r"color/\+depth/\+pose/, results/\+traj\.txt, transforms\.json, metadata\+rgbd/, "
+        r"metadata\.json\+rgb/\+depth/, "
         r"keyframes/images\+cameras/, frame-\*\.color\.\*"
     )
     with pytest.raises(InputError, match=expected):

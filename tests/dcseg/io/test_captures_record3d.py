@@ -8,8 +8,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import OpenEXR
 import pytest
 
+from dcseg.cli import main
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.io import limits
@@ -217,3 +219,89 @@ def test_missing_parts_and_image_size(r3d: Path) -> None:
     message = _error(r3d)
     assert "rgbd/2.depth: missing (colour rgbd/2.jpg has no depth)" in message
     assert "metadata:K: intrinsics are for 24x18 but the image rgbd/1.jpg is 10x10" in message
+
+
+# --------------------------------------------------------------------------- "EXR + JPG" export
+
+
+def write_exr(path: Path, depth: np.ndarray, channels: tuple[str, ...] = ("R",)) -> None:
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with OpenEXR.File(header, dict.fromkeys(channels, depth)) as exr:
+        exr.write(str(path))
+
+
+def write_exr_export(root: Path, meta: dict[str, Any] | None = None) -> Path:
+    meta = meta or metadata()
+    root.mkdir(parents=True)
+    (root / "metadata.json").write_text(json.dumps(meta))
+    for i, view in enumerate(VIEWS):
+        write_image(root / "rgb" / f"{i}.jpg", colour(i))
+        write_exr(root / "depth" / f"{i}.exr", depth_map(view))
+    return root
+
+
+def test_exr_export_is_detected_and_read(tmp_path: Path) -> None:
+    meta = metadata()
+    del meta["dw"], meta["dh"]  # the EXR images state their size
+    root = write_exr_export(tmp_path / "EXR_RGBD", meta)
+    assert detect_layout(root) == "record3d-exr"
+    capture = read_capture(root, CaptureOptions(min_confidence=2))  # no confidence: ignored
+    assert capture.frames[0].files["depth"] == "depth/0.exr"
+    assert capture.frames[2].files["pose"] == "metadata.json:poses[2]"
+    assert_views_read(capture)
+
+
+def test_exr_half_float_and_nan_depth(tmp_path: Path) -> None:
+    root = write_exr_export(tmp_path / "EXR_RGBD")
+    depth = depth_map(VIEWS[2]).astype(np.float16)
+    depth[4, :] = np.nan
+    write_exr(root / "depth" / "2.exr", depth)
+    frame = read_capture(root).frames[2]
+    assert np.all(frame.depth[8:10] == 0.0)
+    assert np.all(frame.depth[10:] == np.float32(2.0))
+
+
+def test_exr_export_errors(tmp_path: Path) -> None:
+    meta = metadata()
+    meta["poses"] = meta["poses"][:2]
+    root = write_exr_export(tmp_path / "EXR_RGBD", meta)
+    assert "metadata.json: poses: has 2 poses but rgb/ holds 3 colour images" in _error(root)
+    root = write_exr_export(tmp_path / "other")
+    (root / "depth" / "0.exr").write_bytes(b"not an exr at all")
+    write_exr(root / "depth" / "1.exr", depth_map(VIEWS[1]), channels=("G", "B"))
+    (root / "depth" / "2.exr").unlink()
+    message = _error(root)
+    assert "depth/0.exr: cannot read EXR header (corrupt or not an EXR image)" in message
+    assert (
+        "depth/1.exr: no depth channel: expected one of R, Y, Z, depth, got ['B', 'G']" in message
+    )
+    assert "depth/2.exr: missing (colour rgb/2.jpg has no depth)" in message
+
+
+def test_exr_pixels_count_against_the_validation_budget(tmp_path: Path) -> None:
+    root = write_exr_export(tmp_path / "EXR_RGBD")
+    colour_px, depth_px = WIDTH * HEIGHT, DEPTH_WIDTH * DEPTH_HEIGHT
+    budget = 3 * colour_px + 2 * depth_px + 50  # all colour fits, the third depth does not
+    report = validate_inputs(InputPaths(capture=root), max_pixels=budget)
+    assert len(report.problems) == 1
+    assert isinstance(report.problems[0], LimitProblem)
+    assert report.problems[0].path.endswith("depth/2.exr")  # counted from the EXR header
+    assert "number 6 of those to decode" in report.problems[0].reason
+
+
+def test_dcseg_validate_reports_r3d_problems(
+    r3d: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = write_r3d_file(r3d, tmp_path / "good.r3d")
+    fractions = []
+    for level in ("0", "1"):
+        assert main(["validate", str(good), "--min-confidence", level, "--json"]) == 0
+        summary = json.loads(capsys.readouterr().out)["summary"]["capture"]
+        assert summary["layout"] == "record3d"
+        fractions.append(summary["depth_valid_fraction"])
+    assert fractions[1] == pytest.approx(2 / 3)  # rows 0, 3, 6 of 9 have level 0
+    (r3d / "rgbd" / "2.conf").unlink()
+    bad = write_r3d_file(r3d, tmp_path / "bad.r3d")
+    assert main(["validate", str(bad), "--min-confidence", "1"]) == 1
+    assert "rgbd/2.conf: missing" in capsys.readouterr().out

@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import dcseg.io.captures
 from dcseg.cli import main
-from dcseg.config import CaptureOptions
+from dcseg.config import BUDGET_PRESETS, CaptureOptions, FrameBudget
+from dcseg.io.captures.plan import CaptureMeta, plan_capture
 from dcseg.io.ply import read_gaussians_ply
 from tests.dcseg.reconstruct.scene import make_capture
 
@@ -18,17 +20,22 @@ def test_reconstruct_writes_ply_and_report(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     seen: list[CaptureOptions] = []
+    budgets: list[FrameBudget] = []
 
-    def fake_read_capture(path: Path, options: CaptureOptions):
+    def fake_read_planned(path: Path, options: CaptureOptions, budget: FrameBudget):
         seen.append(options)
-        return make_capture(5, 24, 18)
+        budgets.append(budget)
+        capture = make_capture(5, 24, 18)
+        poses = np.stack([f.c2w for f in capture.frames])
+        return capture, plan_capture(CaptureMeta(capture.names, poses, (24, 18)), budget)
 
-    monkeypatch.setattr(dcseg.io.captures, "read_capture", fake_read_capture)
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", fake_read_planned)
     out = tmp_path / "out"
     argv = ["reconstruct", str(tmp_path), "--out", str(out), "--iterations", "8"]
     argv += ["--holdout", "3", "--seed", "1", "--intrinsics", "10,10,5,5", "--stride", "2"]
     assert main(argv) == 0
     assert seen[0].intrinsics == (10.0, 10.0, 5.0, 5.0) and seen[0].stride == 2
+    assert budgets == [BUDGET_PRESETS["fast"]]
     gaussians = read_gaussians_ply(out / "scene.ply")
     report = json.loads((out / "reconstruction.json").read_text())
     assert report["gaussians"] == len(gaussians) > 0
@@ -39,6 +46,7 @@ def test_reconstruct_writes_ply_and_report(
     assert report["config"]["iterations"] == 8 and report["seed"] == 1
     assert report["backend"] == "cpu"
     assert report["peak_memory_mb"] > 0 and "torch" in report["versions"]
+    assert report["capture"]["size"] == [24, 18] and report["capture"]["factor"] == 1
     assert "reconstruct" in capsys.readouterr().err  # the progress bar
 
 

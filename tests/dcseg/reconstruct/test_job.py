@@ -7,13 +7,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 
 import dcseg.io.captures
 import dcseg.reconstruct.job as job
 from dcseg.cli import main
+from dcseg.config import FrameBudget
 from dcseg.errors import InputError
+from dcseg.io.captures.plan import CaptureMeta, plan_capture
 from service.settings import Settings
 from tests.dcseg.reconstruct.scene import make_capture
 from worker.execute import StageContext
@@ -32,8 +35,15 @@ def calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[Any, ...]]:
         seen.append((len(capture), cfg.iterations, device.type))
         raise Reached
 
+    def read_planned(path: Path, options: Any, budget: FrameBudget) -> Any:
+        seen.append(("read", budget.max_side))
+        capture = make_capture(3)
+        poses = np.stack([f.c2w for f in capture.frames])
+        size = (capture.frames[0].width, capture.frames[0].height)
+        return capture, plan_capture(CaptureMeta(capture.names, poses, size), budget)
+
     monkeypatch.setattr(job, "reconstruct_scene", fake)
-    monkeypatch.setattr(dcseg.io.captures, "read_capture", lambda path, options: make_capture(3))
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", read_planned)
     return seen
 
 
@@ -41,17 +51,18 @@ def test_cli_reconstruct_goes_through_reconstruct_job(calls, tmp_path: Path) -> 
     argv = ["reconstruct", str(tmp_path), "--out", str(tmp_path / "o"), "--iterations", "9"]
     with pytest.raises(Reached):
         main([*argv, "--device", "cpu"])
-    assert calls == [(3, 9, "cpu")]
+    assert calls == [("read", 640), (3, 9, "cpu")]
 
 
 def test_worker_stage_goes_through_reconstruct_job(calls, tmp_path: Path) -> None:
-    config = {"preset": "fast", "options": {"reconstruct": {"iterations": 11}}}
+    options = {"reconstruct": {"iterations": 11}, "budget": {"max_side": "native"}}
+    config = {"preset": "fast", "options": options}
     ctx = StageContext(
         "job", tmp_path, config, Settings(device="cpu"), lambda f, m: None, lambda m: None
     )
     with pytest.raises(Reached):
         ReconstructStage().run(ctx, tmp_path / "out")
-    assert calls == [(3, 11, "cpu")]
+    assert calls == [("read", None), (3, 11, "cpu")]
 
 
 def test_unknown_device_is_an_input_error_naming_it(calls, tmp_path: Path, capsys) -> None:

@@ -163,10 +163,25 @@ def baselines(saved: SavedRun, scorer: Scorer, cfg: PipelineConfig) -> dict[str,
     }
 
 
-def current_config(saved: SavedRun, cluster_seed: int) -> PipelineConfig:
+def overridden(cfg: PipelineConfig, overrides: Sequence[str]) -> PipelineConfig:
+    """``cfg`` with ``section.field=JSON`` overrides (``assign.complete=false``, ``scale=0.5``)."""
+    for item in overrides:
+        key, _, text = item.partition("=")
+        value = json.loads(text)
+        section, _, name = key.rpartition(".")
+        if section:
+            cfg = replace(cfg, **{section: replace(getattr(cfg, section), **{name: value})})
+        else:
+            cfg = replace(cfg, **{name: value})
+    return cfg
+
+
+def current_config(
+    saved: SavedRun, cluster_seed: int, overrides: Sequence[str] = ()
+) -> PipelineConfig:
     """The current fast preset's segmentation with the run's trained config (seeds, cache)."""
     trained = PipelineConfig.from_dict(saved.record["config"])
-    now = preset("fast")
+    now = overridden(preset("fast"), overrides)
     return replace(
         now,
         seed=trained.seed,
@@ -178,19 +193,14 @@ def current_config(saved: SavedRun, cluster_seed: int) -> PipelineConfig:
 
 
 def score_segmentation(
-    saved: SavedRun, scorer: Scorer, cluster_seed: int, tmp: Path
+    saved: SavedRun, scorer: Scorer, cluster_seed: int, tmp: Path, overrides: Sequence[str]
 ) -> dict[str, Any]:
     """Segment the saved state with the current code and defaults, export, score the exports."""
-    cfg = current_config(saved, cluster_seed)
-    start = time.perf_counter()
-    seg = segment_scene(
-        saved.trained,
-        saved.semantic,
-        len(saved.vocabulary),
-        cfg,
-        class_names=saved.vocabulary.names,
-    )
-    seconds = time.perf_counter() - start
+    cfg = current_config(saved, cluster_seed, overrides)
+    start, cpu = time.perf_counter(), time.process_time()
+    names = saved.vocabulary.names
+    seg = segment_scene(saved.trained, saved.semantic, len(names), cfg, class_names=names)
+    seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
     out = Path(tempfile.mkdtemp(dir=tmp))
     write_outputs(out, saved.trained, seg, saved.vocabulary, [])
     views = saved.trained.views
@@ -201,6 +211,7 @@ def score_segmentation(
     return {
         "cluster_seed": cluster_seed,
         "segment_seconds": round(seconds, 2),
+        "segment_cpu_seconds": round(cpu, 2),
         "nearest": scorer.semantic(scorer.nearest(labels.semantic_ids)),
         "projection": scorer.semantic(
             scorer.projection([labels.label_maps[v.name] for v in views], views)
@@ -224,7 +235,8 @@ def score_run(work: Path, noise: str, layout: int, args: argparse.Namespace) -> 
     }
     with tempfile.TemporaryDirectory() as tmp:
         row["dcseg"] = [
-            score_segmentation(saved, scorer, seed, Path(tmp)) for seed in args.cluster_seeds
+            score_segmentation(saved, scorer, seed, Path(tmp), args.set)
+            for seed in args.cluster_seeds
         ]
     return row
 
@@ -243,6 +255,7 @@ METRICS: dict[str, tuple[str, ...]] = {
     "instance_mcov": ("instances", "mcov"),
     "count_ratio": ("instances", "count_ratio"),
     "segment_seconds": ("segment_seconds",),
+    "segment_cpu_seconds": ("segment_cpu_seconds",),
 }
 """Summary name -> path into a row's baselines or one of its segmentations."""
 
@@ -369,6 +382,7 @@ def score(args: argparse.Namespace) -> None:
         "preset": "fast",
         "pipeline_seed": args.pipeline_seed,
         "cluster_seeds": args.cluster_seeds,
+        "overrides": args.set,
         "tuning_layouts": args.tuning,
         "heldout_layouts": args.heldout,
         "not_trained": missing,
@@ -394,6 +408,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--heldout", nargs="*", type=int, default=list(HELDOUT))
     p.add_argument("--cluster-seeds", nargs="+", type=int, default=[0, 10])
     p.add_argument("--pipeline-seed", type=int, default=0)
+    p.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="KEY=JSON",
+        help="segmentation overrides for ablations, e.g. assign.complete=false scale=0.5",
+    )
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--reconstruct-iterations", type=int, help="override (smoke runs only)")
     p.add_argument("--affinity-iterations", type=int, help="override (smoke runs only)")

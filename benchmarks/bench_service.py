@@ -23,7 +23,9 @@ tasks run four phases:
    the first event (replayed from the store), then the client disconnects (so every request
    opens a new connection);
 4. ``artifacts``: downloads of the running job's largest artifact so far (its ``validate``
-   report, as the job is still reconstructing).
+   report, as the job is still reconstructing) through the API;
+5. ``artifacts_presigned`` (``--mode deployed --storage s3`` only): the same file by its
+   presigned ``download_url``, straight from the S3 server (no API in the path).
 
 It reports requests/s, p50/p99 latency, errors and the API processes' CPU time per request
 (``/proc/<pid>/stat``), and the job's status and its worker's CPU seconds across the phases
@@ -89,6 +91,8 @@ class Target:
     path: str
     first_event: bool = False
     """Server-sent events: measure the time to the first event, then disconnect."""
+    auth: bool = True
+    """Send the API key (not to presigned object-store URLs, which carry their own)."""
 
 
 Pick = Callable[[int], Target]
@@ -336,9 +340,24 @@ def deployed_stack(
             DCSEG_BROKER_URL=broker,
             DCSEG_RATE_LIMIT_URL=broker,
         )
+        if args.storage == "s3":
+            env |= object_storage(stack, root)
         worker = [sys.executable, "-m", "dcseg", "worker", "--pool", "solo", "--loglevel"]
         process = stack.enter_context(launched([*worker, "warning"], env, root / "worker.log"))
         yield env, process
+
+
+def object_storage(stack: ExitStack, root: Path) -> dict[str, str]:
+    """A SeaweedFS S3 server (``weed``, from the dev extras) for ``--storage s3``: the
+    environment of S3 storage in a new bucket, presigned URLs valid for the whole run."""
+    from tests.s3server import new_bucket, weed_server
+
+    (root / "s3").mkdir()
+    server = stack.enter_context(weed_server(root / "s3"))
+    return server.env(new_bucket()) | {
+        "DCSEG_PRESIGN_EXPIRY_S": "3600",
+        "DCSEG_SCRATCH_DIR": str(root / "scratch"),
+    }
 
 
 # ----- load ------------------------------------------------------------------------------
@@ -390,7 +409,8 @@ async def _request(http: httpx.AsyncClient, target: Target) -> int:
     """One request; its status (0 = transport error)."""
     try:
         if not target.first_event:
-            return (await http.get(target.path, headers=HEADERS)).status_code
+            headers = HEADERS if target.auth else {}
+            return (await http.get(target.path, headers=headers)).status_code
         async with http.stream("GET", target.path, headers=HEADERS) as response:
             if response.status_code == 200:
                 async for line in response.aiter_lines():
@@ -478,12 +498,16 @@ def phase_picks(job_id: str, artifact: dict[str, Any]) -> dict[str, Pick]:
     listing = Target("GET /v1/jobs", list_path)
     events = Target("GET /v1/jobs/{id}/events", f"{job_path}/events", first_event=True)
     download = Target("GET /v1/jobs/{id}/artifacts/{name}", str(artifact["url"]))
-    return {
+    picks: dict[str, Pick] = {
         "healthz": lambda i: health,
         "api": lambda i: listing if i % LIST_EVERY == LIST_EVERY - 1 else poll,
         "events": lambda i: events,
         "artifacts": lambda i: download,
     }
+    if artifact.get("download_url"):  # object storage: the same file, straight from the store
+        direct = Target("GET presigned download_url", str(artifact["download_url"]), auth=False)
+        picks["artifacts_presigned"] = lambda i: direct
+    return picks
 
 
 def load_phases(server: Server, args: argparse.Namespace, archive: bytes) -> dict[str, Any]:
@@ -707,6 +731,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=list(range(14, 0, -1)),
         help="deployed: Redis databases to choose an empty one from (14..1)",
     )
+    parser.add_argument(
+        "--storage",
+        choices=["local", "s3"],
+        default="local",
+        help="deployed: local storage or a SeaweedFS S3 server (adds the presigned phase)",
+    )
     parser.add_argument("--rate-limit", type=int, default=10, help="deployed: limit to check")
     parser.add_argument("--rate-burst", type=int, default=30, help="deployed: requests sent")
     parser.add_argument("--out", type=Path, help="write the results as JSON here")
@@ -732,6 +762,8 @@ def run_deployed(root: Path, args: argparse.Namespace, archive: bytes) -> dict[s
         f"uvicorn --workers {processes} (service.main:create_app --factory) behind one port, "
         "PostgreSQL, Redis broker, one separate `dcseg worker --pool solo`"
     )
+    if args.storage == "s3":
+        mode += ", S3 storage (SeaweedFS `weed server -s3` on this machine), worker scratch"
     return loaded | {"mode": mode, "rate_limit_check": check}
 
 

@@ -1,9 +1,10 @@
 """Exports of a finished job (``dcseg.export``), made on demand and cached in the job's folder.
 
-An export is made once per (selection, format): the whole scene or one instance. The first
-request starts it on a thread of :class:`Exporter`, which runs ``export_run`` in a child
-process of its own (spawned: the API process never imports the exporters' dependencies, an
-export cannot block the event loop, and one past ``DCSEG_EXPORT_TIME_LIMIT_S`` is killed).
+An export is made once per (selection, format, options): the whole scene or one instance. The
+first request starts it on a thread of :class:`Exporter`, which runs ``export_run`` in a child
+process of its own (``python -m service.export_child``: the API process never imports the
+exporters' dependencies, an export cannot block the event loop, and one past
+``DCSEG_EXPORT_TIME_LIMIT_S`` is killed).
 The child writes into a temporary folder; its files are hashed, checked against
 ``DCSEG_MAX_EXPORT_BYTES`` and renamed into place with a manifest, so a reader sees a whole
 export or none. A failure is cached the same way (``error.json``) for the limits it met.
@@ -17,22 +18,25 @@ Layout inside ``jobs/<job_id>/``::
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
-import multiprocessing
 import os
 import shutil
+import subprocess
+import sys
 import threading
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, get_args
 
-from service.export_child import RUN, run_exporter
+from service.blobstore import Storage, StoredFile
+from service.export_child import RUN
 from service.schemas import ExportFormat
 from service.settings import Settings
 from worker.contract import JobPaths
@@ -45,9 +49,60 @@ EXPORTER = "dcseg.export:export_run"
 """``module:function`` the child process calls: ``(run, out, fmt, *, instances) -> paths``."""
 
 
-def run_folder(paths: JobPaths) -> Path:
-    """The finished run an export reads: the job's segment stage folder."""
-    return paths.output / RUN
+RunGetter = Callable[[], Path]
+"""Gives the local folder of the finished run an export reads (called on an export thread)."""
+
+
+def cache_root(settings: Settings, job_id: str) -> Path:
+    """Where a job's exports are cached: ``jobs/<id>/exports/`` of the API's storage folder."""
+    return JobPaths(settings.storage_dir, job_id).folder / "exports"
+
+
+def remove_cached(settings: Settings, job_id: str) -> None:
+    """Delete a job's cached exports (with object storage they live on the API's disk)."""
+    shutil.rmtree(cache_root(settings, job_id), ignore_errors=True)
+
+
+def run_getter(storage: Storage, tenant: str, job_id: str, settings: Settings) -> RunGetter:
+    """The job's segment stage folder: read in place from local storage; fetched once from
+    object storage into ``exports/run/`` of the cache (SHA-256 checked)."""
+    if storage.backend == "local":
+        folder = JobPaths(settings.storage_dir, job_id).output / RUN
+        return lambda: folder
+    dest = cache_root(settings, job_id) / "run"
+    return functools.partial(fetch_run, storage, tenant, job_id, dest)
+
+
+def fetch_run(storage: Storage, tenant: str, job_id: str, dest: Path) -> Path:
+    """Copy the files of the job's segment stage into ``dest`` (once; renamed into place)."""
+    if dest.is_dir():
+        return dest
+    tmp = dest.with_name(f".tmp-run-{uuid.uuid4().hex[:8]}")
+    try:
+        for item in storage.files(tenant, job_id):
+            if item.name.startswith(RUN + "/"):
+                _fetch_file(storage, tenant, item, tmp / item.name.removeprefix(RUN + "/"))
+        tmp.mkdir(parents=True, exist_ok=True)
+        os.rename(tmp, dest)
+    except OSError:
+        if not dest.is_dir():  # else another thread fetched it first
+            raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return dest
+
+
+def _fetch_file(storage: Storage, tenant: str, item: StoredFile, target: Path) -> None:
+    if ".." in Path(item.name).parts:
+        raise OSError(f"unsafe stored name {item.name!r}")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    digest = hashlib.sha256()
+    with target.open("wb") as out:
+        for chunk in storage.read(tenant, item, 0, item.size - 1) if item.size else ():
+            digest.update(chunk)
+            out.write(chunk)
+    if digest.hexdigest() != item.sha256:
+        raise OSError(f"{item.name}: SHA-256 mismatch while fetching it from storage")
 
 
 @dataclass(frozen=True)
@@ -56,13 +111,21 @@ class Selection:
 
     fmt: str
     instance: int | None = None
+    options: tuple[tuple[str, str | int], ...] = ()
+    """``ExportOptions`` fields that differ from their defaults, sorted by name."""
 
     @property
     def folder_name(self) -> str:
         return "scene" if self.instance is None else f"instance-{self.instance}"
 
-    def folder(self, job_folder: Path) -> Path:
-        return job_folder / "exports" / self.folder_name / self.fmt
+    @property
+    def variant(self) -> str:
+        """The cache folder of the format and options: ``ply``, ``ply.colour-class.sh_degree-3``."""
+        return self.fmt + "".join(f".{name}-{value}" for name, value in self.options)
+
+    def folder(self, root: Path) -> Path:
+        """The cache folder of this export under a job's :func:`cache_root`."""
+        return root / self.folder_name / self.variant
 
 
 @dataclass(frozen=True)
@@ -83,7 +146,7 @@ class Done:
 class Failed:
     slug: str
     """``export-failed`` (the run cannot be exported so), ``export-too-large``,
-    ``export-timed-out`` or ``export-error`` (an internal error, with ``error_id``)."""
+    ``export-timed-out`` or ``export-error`` (an internal error; never cached)."""
     detail: str
     errors: list[dict[str, str]]
 
@@ -134,12 +197,12 @@ class Exporter:
         self.settings = settings
         self.target = target
         self._pool = ThreadPoolExecutor(settings.max_concurrent_exports, "export")
-        self._making: dict[Path, Future[None]] = {}
-        self._children: set[Any] = set()
+        self._making: dict[Path, Future[Failed | None]] = {}
+        self._children: set[subprocess.Popen[bytes]] = set()
         self._lock = threading.Lock()
         self._closed = False
 
-    def start(self, run: Path, folder: Path, selection: Selection) -> Future[None]:
+    def start(self, run: RunGetter, folder: Path, selection: Selection) -> Future[Failed | None]:
         """The (new or running) making of the export into ``folder``."""
         with self._lock:
             running = self._making.get(folder)
@@ -163,15 +226,20 @@ class Exporter:
             child.kill()
         self._pool.shutdown(wait=False, cancel_futures=True)
 
-    def _make(self, run: Path, folder: Path, selection: Selection) -> None:
+    def _make(self, get_run: RunGetter, folder: Path, selection: Selection) -> Failed | None:
+        """Make the export and cache its outcome; an internal error (a crash, a shutdown) is
+        not cached but returned, so the next request tries again."""
         if read_cached(folder, self.settings) is not None:
-            return  # made by another replica (or thread) meanwhile
+            return None  # made by another replica (or thread) meanwhile
+        run = get_run()
         tmp = folder.with_name(f".tmp-{folder.name}-{uuid.uuid4().hex[:8]}")
         (tmp / "files").mkdir(parents=True)
         try:
             started = time.monotonic()
             record = self._run_child(run, tmp, selection)
             record["seconds"] = round(time.monotonic() - started, 3)
+            if record.get("type") == "export-error":
+                return Failed("export-error", str(record["detail"]), [])
             name = "manifest.json" if "files" in record else "error.json"
             if name == "error.json":  # a failure keeps no files
                 shutil.rmtree(tmp / "files", ignore_errors=True)
@@ -179,34 +247,36 @@ class Exporter:
             _publish(tmp, folder)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+        return None
 
     def _run_child(self, run: Path, tmp: Path, selection: Selection) -> dict[str, Any]:
         """Run the exporter in a child; the manifest or error record of its outcome."""
         out = tmp / "files"
-        instances = None if selection.instance is None else [selection.instance]
-        context = multiprocessing.get_context("spawn")
-        child = context.Process(
-            target=run_exporter,
-            args=(self.target, str(run), str(out), selection.fmt, instances),
-            name=f"export-{selection.fmt}",
-            daemon=True,
-        )
+        job = {
+            "target": self.target,
+            "run": str(run),
+            "out": str(out),
+            "fmt": selection.fmt,
+            "instances": None if selection.instance is None else [selection.instance],
+            "options": dict(selection.options),
+        }
+        command = [sys.executable, "-m", "service.export_child", json.dumps(job)]
         with self._lock:
             if self._closed:
                 return self._failure("export-error", "the server is shutting down")
-            child.start()
+            child = subprocess.Popen(command, stdin=subprocess.DEVNULL, env=_child_env())
             self._children.add(child)
         try:
-            child.join(self.settings.export_time_limit_s)
-            if child.is_alive():
-                child.kill()
-                child.join()
-                limit = self.settings.export_time_limit_s
-                return self._failure(
-                    "export-timed-out",
-                    f"the {selection.fmt} export took longer than {limit:g} s"
-                    " (DCSEG_EXPORT_TIME_LIMIT_S)",
-                )
+            child.wait(self.settings.export_time_limit_s)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+            limit = self.settings.export_time_limit_s
+            return self._failure(
+                "export-timed-out",
+                f"the {selection.fmt} export took longer than {limit:g} s"
+                " (DCSEG_EXPORT_TIME_LIMIT_S)",
+            )
         finally:
             with self._lock:
                 self._children.discard(child)
@@ -254,7 +324,13 @@ class Exporter:
                 f"the {selection.fmt} export would be {total} bytes, above"
                 f" DCSEG_MAX_EXPORT_BYTES ({self.settings.max_export_bytes})",
             )
-        return {"format": selection.fmt, "instance": selection.instance, "files": files}
+        options = dict(selection.options)
+        return {
+            "format": selection.fmt,
+            "instance": selection.instance,
+            "options": options,
+            "files": files,
+        }
 
     def _failure(self, slug: str, detail: str, **extra: Any) -> dict[str, Any]:
         return {
@@ -263,6 +339,12 @@ class Exporter:
             "limits": limits_of(self.settings),
             **extra,
         }
+
+
+def _child_env() -> dict[str, str]:
+    """The environment of an export child: this one, with this process's import path (as
+    multiprocessing gives a spawned child), so it imports the same ``service`` and ``dcseg``."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
 
 
 def _publish(tmp: Path, folder: Path) -> None:

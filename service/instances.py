@@ -1,7 +1,8 @@
 """A finished job's segmented objects, read from its ``segment/instances.json`` artifact.
 
 The artifact is immutable once the job succeeded, so nothing is cached: each request reads the
-file named by the manifest (through :func:`service.artifacts.find_artifact`, like downloads).
+file the manifest names through the job's storage (:func:`service.artifacts.find_artifact` and
+``Storage.read``, as downloads do), local or object storage alike.
 """
 
 from __future__ import annotations
@@ -17,8 +18,6 @@ from service.artifacts import find_artifact
 from service.blobstore import Storage
 from service.models import Job
 from service.problems import ApiProblem
-from service.settings import Settings
-from worker.contract import JobPaths
 
 INSTANCES = "segment/instances.json"
 """The artifact listing a job's objects (``dcseg.io.exports``)."""
@@ -44,8 +43,26 @@ class Filter:
         return hashlib.sha256(raw).hexdigest()[:16]
 
 
-def finished_job(settings: Settings, job: Job | None, job_id: str) -> JobPaths:
-    """The folders of a succeeded job; 404 when it is unknown, 409 when it has not succeeded."""
+@dataclass(frozen=True)
+class JobFiles:
+    """The stored files of one succeeded job of a tenant."""
+
+    storage: Storage
+    tenant: str
+    job_id: str
+
+    def read_json(self, name: str) -> dict[str, Any] | None:
+        """The artifact ``name`` parsed, read like downloads (None when the job has none)."""
+        found = find_artifact(self.storage, self.tenant, self.job_id, name)
+        if found is None:
+            return None
+        data = b"".join(self.storage.read(self.tenant, found.item, 0, found.size - 1))
+        body: dict[str, Any] = json.loads(data)
+        return body
+
+
+def finished_job(storage: Storage, tenant: str, job: Job | None, job_id: str) -> JobFiles:
+    """The files of a succeeded job; 404 when it is unknown, 409 when it has not succeeded."""
     if job is None:
         raise ApiProblem(404, f"no job {job_id!r}", slug="not-found", job_id=job_id)
     if job.status != "succeeded":
@@ -55,37 +72,26 @@ def finished_job(settings: Settings, job: Job | None, job_id: str) -> JobPaths:
             slug="job-unfinished",
             job_id=job_id,
         )
-    return JobPaths(settings.storage_dir, job_id)
+    return JobFiles(storage, tenant, job_id)
 
 
-def _read_json(storage: Storage, tenant: str, job_id: str, name: str) -> dict[str, Any] | None:
-    found = find_artifact(storage, tenant, job_id, name)
-    if found is None:
-        return None
-    raw = b"".join(storage.read(tenant, found.item, 0, found.size - 1))
-    body: dict[str, Any] = json.loads(raw.decode("utf-8"))
-    return body
-
-
-def read_instances(storage: Storage, tenant: str, paths: JobPaths) -> dict[str, Any]:
+def read_instances(files: JobFiles) -> dict[str, Any]:
     """The job's ``instances.json``; 404 when the segment stage was skipped (no masks)."""
-    body = _read_json(storage, tenant, paths.job_id, INSTANCES)
+    body = files.read_json(INSTANCES)
     if body is None:
         raise ApiProblem(
             404,
-            f"job {paths.job_id} has no instances (its segment stage was skipped: the upload"
+            f"job {files.job_id} has no instances (its segment stage was skipped: the upload"
             " held no masks)",
             slug="no-instances",
-            job_id=paths.job_id,
+            job_id=files.job_id,
         )
     return body
 
 
-def vocabulary(
-    storage: Storage, tenant: str, paths: JobPaths, records: Sequence[dict[str, Any]]
-) -> set[str]:
+def vocabulary(files: JobFiles, records: Sequence[dict[str, Any]]) -> set[str]:
     """The class names of the job (``labels.json``, else those its instances carry)."""
-    body = _read_json(storage, tenant, paths.job_id, LABELS)
+    body = files.read_json(LABELS)
     if body is None:
         return {str(r["label"]) for r in records if r.get("label") is not None}
     return {str(item["name"]) for item in body.get("labels", [])}

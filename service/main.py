@@ -25,7 +25,17 @@ from service.blobstore import Storage, make_storage
 from service.deps import LOCAL_TENANT, AppState, make_limiter
 from service.exports import Exporter
 from service.queue import JobQueue, make_queue
-from service.routes import artifacts, events, exports, health, instances, jobs, uploads, viewer
+from service.routes import (
+    artifacts,
+    direct_uploads,
+    events,
+    exports,
+    health,
+    instances,
+    jobs,
+    uploads,
+    viewer,
+)
 from service.settings import Settings, get_settings
 from service.store import Store
 from service.uploads import remove_expired_uploads
@@ -224,7 +234,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     problems.install(app)
-    for module in (uploads, jobs, events, artifacts, instances, exports, health, viewer):
+    for module in (
+        uploads,
+        direct_uploads,
+        jobs,
+        events,
+        artifacts,
+        instances,
+        exports,
+        health,
+        viewer,
+    ):
         app.include_router(module.router)
     return app
 

@@ -175,6 +175,69 @@ class S3Storage:
                 f"its manifest says {size} bytes with {sha256}"
             )
 
+    # ----- presigned multipart uploads (POST /v1/direct-uploads) -----
+
+    def direct_key(self, tenant: str, upload_id: str) -> str:
+        return self.key(tenant, f"direct-uploads/{upload_id}/archive")
+
+    def start_multipart(self, tenant: str, upload_id: str, parts: int) -> tuple[str, list[str]]:
+        """Start a multipart upload of the direct upload's archive; its id and one presigned
+        ``PUT`` URL per part (valid for ``DCSEG_PRESIGN_EXPIRY_S``)."""
+        key = self.direct_key(tenant, upload_id)
+        started = self.client.create_multipart_upload(Bucket=self.bucket, Key=key)
+        multipart_id = str(started["UploadId"])
+        urls = [
+            str(
+                self.presigner.generate_presigned_url(
+                    "upload_part",
+                    Params={
+                        "Bucket": self.bucket,
+                        "Key": key,
+                        "UploadId": multipart_id,
+                        "PartNumber": number,
+                    },
+                    ExpiresIn=self.expiry_s,
+                )
+            )
+            for number in range(1, parts + 1)
+        ]
+        return multipart_id, urls
+
+    def complete_multipart(
+        self, tenant: str, upload_id: str, multipart_id: str, parts: list[tuple[int, str]]
+    ) -> None:
+        """Join the parts (``(number, etag)``); botocore's ClientError when S3 refuses."""
+        self.client.complete_multipart_upload(
+            Bucket=self.bucket,
+            Key=self.direct_key(tenant, upload_id),
+            UploadId=multipart_id,
+            MultipartUpload={"Parts": [{"PartNumber": n, "ETag": e} for n, e in parts]},
+        )
+
+    def abort_multipart(self, tenant: str, upload_id: str, multipart_id: str) -> None:
+        from botocore.exceptions import ClientError
+
+        try:
+            self.client.abort_multipart_upload(
+                Bucket=self.bucket, Key=self.direct_key(tenant, upload_id), UploadId=multipart_id
+            )
+        except ClientError as error:
+            if not is_missing(error):
+                raise
+
+    def download(self, key: str, dest: Path, limit: int) -> tuple[int, str]:
+        """Download ``key`` to ``dest``; ``(size, sha256)``; ValueError past ``limit`` bytes."""
+        digest, written = hashlib.sha256(), 0
+        body = self.client.get_object(Bucket=self.bucket, Key=key)["Body"]
+        with dest.open("wb") as out:
+            for chunk in body.iter_chunks(CHUNK):
+                written += len(chunk)
+                if written > limit:
+                    raise ValueError(f"more than {limit} bytes")
+                digest.update(chunk)
+                out.write(chunk)
+        return written, digest.hexdigest()
+
     # ----- the Storage interface -----
 
     def check(self) -> None:

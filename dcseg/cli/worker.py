@@ -36,7 +36,9 @@ def run(args: argparse.Namespace) -> int:
         )
         return 2
     from worker.celery_app import app
+    from worker.workspace import clear_scratch
 
+    clear_scratch(settings)  # left by a worker killed mid-job (its jobs resume elsewhere)
     queues = args.queues or settings.gpu_queue
     app.worker_main(
         [

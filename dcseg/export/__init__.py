@@ -22,6 +22,7 @@ from __future__ import annotations
 import importlib
 import os
 import shutil
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol
@@ -95,9 +96,7 @@ def export_run(
     plan = ExportPlan(labelled, records, instances is None, options)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / f".export-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
+    tmp = Path(tempfile.mkdtemp(prefix=".export-", dir=out))  # one per call, threads too
     try:
         written = _writer(fmt)(plan, tmp, fmt)
         names = [*written.files, *write_sidecars(plan, tmp, fmt, written)]

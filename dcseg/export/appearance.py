@@ -39,6 +39,10 @@ def class_colours(run: LabelledRun, rows: NDArray[Any] | None = None) -> NDArray
     return palette_colours(ids, 0, len(run.classes))
 
 
+PALETTES = {"instance": object_colours, "class": class_colours}
+"""Colour mode -> the palette colour of each Gaussian."""
+
+
 def gaussian_rgb(table: SplatTable) -> NDArray[np.uint8]:
     """``[N, 3]`` view-independent colour (the SH DC term) of each Gaussian."""
     rgb = np.clip(0.5 + SH_C0 * table.sh[:, 0, :], 0.0, 1.0)
@@ -72,10 +76,8 @@ def with_sh_degree(table: SplatTable, degree: int) -> SplatTable:
 def styled(run: LabelledRun, rows: NDArray[Any], options: ExportOptions) -> SplatTable:
     """The Gaussians at ``rows`` with the colours and SH degree ``options`` ask for."""
     table = run.splats.take(rows)
-    if options.colour == "instance":
-        table = paint(table, object_colours(run, rows))
-    elif options.colour == "class":
-        table = paint(table, class_colours(run, rows))
+    if options.colour is not None:
+        table = paint(table, PALETTES[options.colour](run, rows))
     if options.sh_degree is not None:
         table = with_sh_degree(table, options.sh_degree)
     return table

@@ -83,7 +83,8 @@ def describe_frame(c2w: NDArray[np.float64] | None, applied_in: list[str]) -> di
             "layout": "row-major 4x4; gltf_point = matrix @ [world_point, 1]",
             "applied_in": applied_in,
         },
-        "gaussians": "PLY, SPZ and .splat files keep world coordinates (no turn applied)",
+        "gaussians": "PLY, SPZ and .splat files keep world coordinates (no turn applied; SPZ "
+        "without axis conversion, i.e. not in SPZ's RUB unless the matrix is applied)",
     }
 
 

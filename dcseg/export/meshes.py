@@ -72,8 +72,9 @@ def _trimesh(mesh: ObjectMesh) -> trimesh.Trimesh:
     return trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_colors=rgba, process=False)
 
 
-def write_glb(path: Path, plan: ExportPlan, meshes: list[ObjectMesh]) -> None:
-    """One node per object, turned to Y-up; the frame description in the scene's extras."""
+def write_glb(path: Path, plan: ExportPlan, meshes: list[ObjectMesh]) -> dict[int, str]:
+    """One node per object, turned to Y-up; the frame description in the scene's extras.
+    Returns each object's node name."""
     frame = describe_frame(poses(plan.run.path, plan.options.capture), [path.name])
     turn = np.asarray(frame["to_gltf"]["matrix"], np.float64)
     records = {int(r["id"]): r for r in plan.records}
@@ -89,6 +90,7 @@ def write_glb(path: Path, plan: ExportPlan, meshes: list[ObjectMesh]) -> None:
         )
     scene.metadata = {"dcseg_frame": frame}
     path.write_bytes(scene.export(file_type="glb"))  # type: ignore[no-untyped-call]
+    return {m.instance: node_extras(records[m.instance])["name"] for m in meshes}
 
 
 def write_mesh_ply(path: Path, meshes: list[ObjectMesh]) -> None:
@@ -120,7 +122,7 @@ def write_meshes(plan: ExportPlan, folder: Path, fmt: str) -> Written:
     written = Written()
     if fmt == "glb":
         written.scene = "scene.glb"
-        write_glb(folder / written.scene, plan, meshes)
+        written.nodes = write_glb(folder / written.scene, plan, meshes)
         written.files.append(written.scene)
         return written
     for mesh in meshes:

@@ -62,9 +62,11 @@ class Written:
         scene: the scene-wide file, if any.
         ranges: ``[offset, count]`` of each object's Gaussians in ``scene`` (key ``"none"``:
             Gaussians of no selected object), for Gaussian formats.
+        nodes: each object's node name in ``scene`` (GLB; objects without a surface have none).
     """
 
     files: list[str] = field(default_factory=list)
     per_instance: dict[int, str] = field(default_factory=dict)
     scene: str | None = None
     ranges: dict[str, list[int]] = field(default_factory=dict)
+    nodes: dict[int, str] = field(default_factory=dict)

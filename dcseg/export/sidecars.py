@@ -42,6 +42,8 @@ def instance_table(plan: ExportPlan, fmt: str, written: Written) -> dict[str, An
         extra = {"file": written.per_instance.get(k), "rgb": colour}
         if written.ranges:
             extra["gaussians"] = written.ranges.get(str(k))
+        if fmt == "glb":
+            extra["node"] = written.nodes.get(k)
         rows.append({**record, **extra})
     return {
         "run": str(run.path),

@@ -4,7 +4,8 @@ Unity and Niantic's own tools read).
 SPZ quantises: positions to 24-bit fixed point with 12 fractional bits (0.24 mm steps, +-2 km),
 colours (SH DC) to 8 bits over +-3.33, log scales to 1/16, opacity to 8 bits of alpha, higher SH
 coefficients to 8 bits over +-1, rotations to the smallest-three 32-bit code. Coordinates are
-written as the run's world coordinates (``frame.json`` states them), as ``gsply`` does.
+the run's world coordinates, unconverted (the SPZ library's ``UNSPECIFIED`` system, which is
+what ``gsply`` writes); SPZ's own convention is RUB, glTF's, reached by ``frame.json``'s matrix.
 """
 
 from __future__ import annotations

@@ -4,12 +4,12 @@ cached in the job's folder, downloaded like artifacts (``/{name}``, ETag and Ran
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path as FilePath
 from typing import Annotated, Any
+from urllib.parse import urlencode
 
-from fastapi import APIRouter, Depends, Path, Request, Response
+from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, StreamingResponse
 
@@ -17,9 +17,16 @@ from service import artifacts, exports, instances
 from service.blobstore import StoredFile, read_local
 from service.deps import AppState, StateDep, TenantDep
 from service.problems import ApiProblem, problem_responses
-from service.routes.artifacts import IfNoneMatch, IfRange, RangeHeader, send_file, send_headers
+from service.routes.artifacts import (
+    IfNoneMatch,
+    IfRange,
+    RangeHeader,
+    Reader,
+    send_file,
+    send_headers,
+)
 from service.routes.instances import InstanceId, instance_url
-from service.schemas import ArtifactPublic, ExportFormat, ExportLinks, ExportPublic
+from service.schemas import ArtifactPublic, ExportColour, ExportFormat, ExportLinks, ExportPublic
 
 router = APIRouter(prefix="/v1/jobs", tags=["exports"])
 
@@ -34,10 +41,36 @@ def get_exporter(request: Request) -> exports.Exporter:
 ExporterDep = Annotated[exports.Exporter, Depends(get_exporter)]
 
 
-def export_url(job_id: str, selection: exports.Selection) -> str:
+def export_options(
+    colour: Annotated[
+        ExportColour | None,
+        Query(description="palette colours by object or by class; default: as reconstructed"),
+    ] = None,
+    sh_degree: Annotated[
+        int | None,
+        Query(ge=0, le=3, description="write this SH degree (3 pads for strict loaders)"),
+    ] = None,
+) -> tuple[tuple[str, str | int], ...]:
+    """The export options of the query (each one makes its own cached export)."""
+    given: dict[str, str | int | None] = {"colour": colour, "sh_degree": sh_degree}
+    return tuple(sorted((k, v) for k, v in given.items() if v is not None))
+
+
+OptionsDep = Annotated[tuple[tuple[str, str | int], ...], Depends(export_options)]
+
+
+def _path(job_id: str, selection: exports.Selection) -> str:
     if selection.instance is None:
         return f"/v1/jobs/{job_id}/exports/{selection.fmt}"
     return f"{instance_url(job_id, selection.instance)}/exports/{selection.fmt}"
+
+
+def _query(selection: exports.Selection) -> str:
+    return "?" + urlencode(selection.options) if selection.options else ""
+
+
+def export_url(job_id: str, selection: exports.Selection) -> str:
+    return _path(job_id, selection) + _query(selection)
 
 
 @dataclass(frozen=True)
@@ -45,57 +78,55 @@ class Target:
     """A checked export request: the run to read and the cache folder."""
 
     job_id: str
-    run: FilePath
+    run: exports.RunGetter
     folder: FilePath
     selection: exports.Selection
 
 
 def _target(state: AppState, tenant: str, job_id: str, selection: exports.Selection) -> Target:
     """404 for an unknown job or instance, 409 for an unfinished job."""
-    paths = instances.finished_job(state.settings, state.store.get_job(job_id, tenant), job_id)
-    records = instances.read_instances(state.storage, tenant, paths).get("instances", [])
+    job = state.store.get_job(job_id, tenant)
+    files = instances.finished_job(state.storage, tenant, job, job_id)
+    records = instances.read_instances(files).get("instances", [])
     if selection.instance is not None:
         instances.find_instance(records, job_id, selection.instance)
-    return Target(job_id, exports.run_folder(paths), selection.folder(paths.folder), selection)
+    run = exports.run_getter(state.storage, tenant, job_id, state.settings)
+    folder = selection.folder(exports.cache_root(state.settings, job_id))
+    return Target(job_id, run, folder, selection)
 
 
 def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
-    url = export_url(target.job_id, target.selection)
+    path, query = _path(target.job_id, target.selection), _query(target.selection)
     files = [
         ArtifactPublic(
             name=f.name,
             media_type=_artifact(f).media_type,
             size=f.size,
             sha256=f.sha256,
-            url=f"{url}/{f.name}",
+            url=f"{path}/{f.name}{query}",
         )
         for f in (done.files if done else [])
     ]
     body = ExportPublic(
         format=target.selection.fmt,
         instance=target.selection.instance,
+        options=dict(target.selection.options),
         status="succeeded" if done else "running",
         files=files,
-        links=ExportLinks(self=url),
+        links=ExportLinks(self=path + query),
     )
     return body.model_dump(mode="json")
 
 
-def _artifact(item: exports.ExportFile) -> artifacts.Artifact:
-    return artifacts.Artifact(StoredFile(item.name, item.size, item.sha256, path=item.path))
-
-
-def _send(
-    found: artifacts.Artifact, range_header: str | None, if_range: str | None, inm: str | None
-) -> Response:
-    """Exports are files in the API's export cache folder, read locally."""
+def _reader(found: artifacts.Artifact) -> Reader:
+    """Exports are cached on the API's disk whatever the storage backend."""
     path = found.item.path
     assert path is not None
+    return lambda start, end: read_local(path, start, end)
 
-    def read(start: int, end: int) -> Iterator[bytes]:
-        return read_local(path, start, end)
 
-    return send_file(found, read, range_header, if_range, inm)
+def _artifact(item: exports.ExportFile) -> artifacts.Artifact:
+    return artifacts.Artifact(StoredFile(item.name, item.size, item.sha256, path=item.path))
 
 
 def _failure(target: Target, failed: exports.Failed) -> ApiProblem:
@@ -115,7 +146,7 @@ async def _serve(
         making = exporter.start(target.run, target.folder, sel)
         waited = asyncio.wrap_future(making)
         try:
-            await asyncio.wait_for(asyncio.shield(waited), state.settings.export_wait_s)
+            uncached = await asyncio.wait_for(asyncio.shield(waited), state.settings.export_wait_s)
         except TimeoutError:
             headers = {
                 "Retry-After": str(state.settings.retry_after_s),
@@ -123,6 +154,7 @@ async def _serve(
             }
             return JSONResponse(_public(target, None), status_code=202, headers=headers)
         cached = await run_in_threadpool(exports.read_cached, target.folder, state.settings)
+        cached = cached or uncached
     if isinstance(cached, exports.Failed):
         raise _failure(target, cached)
     if cached is None:
@@ -138,12 +170,17 @@ EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
 
 @router.get("/{job_id}/exports/{format}", response_model=ExportPublic, responses=EXPORT_RESPONSES)
 async def scene_export(
-    job_id: str, fmt: Format, state: StateDep, tenant: TenantDep, exporter: ExporterDep
+    job_id: str,
+    fmt: Format,
+    options: OptionsDep,
+    state: StateDep,
+    tenant: TenantDep,
+    exporter: ExporterDep,
 ) -> Response:
     """The whole scene in one format: made on the first request and cached. 202 with
     ``Retry-After`` while it is being made; 422 when the job cannot be exported so (or the
     export passed a limit), with the reason."""
-    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt))
+    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt, None, options))
 
 
 @router.get(
@@ -155,12 +192,13 @@ async def instance_export(
     job_id: str,
     k: InstanceId,
     fmt: Format,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     exporter: ExporterDep,
 ) -> Response:
     """One object alone in one format (made on demand and cached, as the scene's)."""
-    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt, k))
+    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt, k, options))
 
 
 def _file(
@@ -197,6 +235,7 @@ def download_scene_export(
     job_id: str,
     fmt: Format,
     name: str,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     range_header: RangeHeader = None,
@@ -204,8 +243,8 @@ def download_scene_export(
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """Download one file of a made scene export (ETag, ``Range``, as artifacts)."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt), name)
-    return _send(found, range_header, if_range, if_none_match)
+    found = _file(state, tenant, job_id, exports.Selection(fmt, None, options), name)
+    return send_file(found, _reader(found), range_header, if_range, if_none_match)
 
 
 @router.head(SCENE_FILE, response_class=Response, responses=HEAD_RESPONSES)
@@ -213,12 +252,13 @@ def scene_export_headers(
     job_id: str,
     fmt: Format,
     name: str,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """The headers of a whole download of a scene export's file, no body."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt), name)
+    found = _file(state, tenant, job_id, exports.Selection(fmt, None, options), name)
     return send_headers(found, if_none_match)
 
 
@@ -228,6 +268,7 @@ def download_instance_export(
     k: InstanceId,
     fmt: Format,
     name: str,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     range_header: RangeHeader = None,
@@ -235,8 +276,8 @@ def download_instance_export(
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """Download one file of a made instance export (ETag, ``Range``, as artifacts)."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt, k), name)
-    return _send(found, range_header, if_range, if_none_match)
+    found = _file(state, tenant, job_id, exports.Selection(fmt, k, options), name)
+    return send_file(found, _reader(found), range_header, if_range, if_none_match)
 
 
 @router.head(INSTANCE_FILE, response_class=Response, responses=HEAD_RESPONSES)
@@ -245,10 +286,11 @@ def instance_export_headers(
     k: InstanceId,
     fmt: Format,
     name: str,
+    options: OptionsDep,
     state: StateDep,
     tenant: TenantDep,
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """The headers of a whole download of an instance export's file, no body."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt, k), name)
+    found = _file(state, tenant, job_id, exports.Selection(fmt, k, options), name)
     return send_headers(found, if_none_match)

@@ -11,15 +11,15 @@ from service.deps import StateDep, TenantDep
 from service.exports import FORMATS
 from service.problems import problem_responses
 from service.schemas import InstanceLinks, InstancePublic, InstancesPublic
-from worker.contract import JobPaths
 
 router = APIRouter(prefix="/v1/jobs", tags=["instances"])
 
 InstanceId = Annotated[int, Path(ge=1, le=2**31 - 1, description="instance id (from 1)")]
 
 
-def _paths(job_id: str, state: StateDep, tenant: str) -> JobPaths:
-    return instances.finished_job(state.settings, state.store.get_job(job_id, tenant), job_id)
+def _files(job_id: str, state: StateDep, tenant: str) -> instances.JobFiles:
+    job = state.store.get_job(job_id, tenant)
+    return instances.finished_job(state.storage, tenant, job, job_id)
 
 
 def instance_url(job_id: str, k: int) -> str:
@@ -52,11 +52,11 @@ def list_instances(
 ) -> InstancesPublic:
     """The objects of a succeeded job, by id; follow ``next_page_token`` until it is absent.
     409 while the job has not succeeded, 404 when it segmented nothing (no masks uploaded)."""
-    paths = _paths(job_id, state, tenant)
-    body = instances.read_instances(state.storage, tenant, paths)
+    files = _files(job_id, state, tenant)
+    body = instances.read_instances(files)
     records: list[dict[str, Any]] = body.get("instances", [])
     keep = instances.Filter(labels=tuple(label or ()), min_score=min_score)
-    instances.check_labels(keep.labels, instances.vocabulary(state.storage, tenant, paths, records))
+    instances.check_labels(keep.labels, instances.vocabulary(files, records))
     after = instances.decode_token(page_token, keep) if page_token else None
     chosen, more = instances.page(records, keep, after, page_size)
     token = instances.encode_token(int(chosen[-1]["id"]), keep) if more and chosen else None
@@ -74,6 +74,6 @@ def list_instances(
 )
 def get_instance(job_id: str, k: InstanceId, state: StateDep, tenant: TenantDep) -> InstancePublic:
     """One object: its class, score, size, box, visibility and download links per format."""
-    paths = _paths(job_id, state, tenant)
-    records = instances.read_instances(state.storage, tenant, paths).get("instances", [])
+    files = _files(job_id, state, tenant)
+    records = instances.read_instances(files).get("instances", [])
     return instance_public(job_id, instances.find_instance(records, job_id, k))

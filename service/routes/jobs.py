@@ -13,6 +13,7 @@ from sqlalchemy.exc import IntegrityError
 from dcseg.errors import InputError
 from dcseg.options import build_config, check_size
 from service.deps import AppState, StateDep, TenantDep
+from service.exports import remove_cached
 from service.idempotency import IdempotencyKeyHeader, idempotent
 from service.jobs import (
     decode_page_token,
@@ -238,4 +239,5 @@ async def delete_job(job_id: str, state: StateDep, tenant: TenantDep) -> Respons
     if job is None:
         raise _not_found(job_id)
     await run_in_threadpool(state.storage.remove_job, tenant, job_id)
+    await run_in_threadpool(remove_cached, state.settings, job_id)
     return Response(status_code=204)

@@ -4,6 +4,7 @@ keyframes, ``run.json`` records the plan, per-view outputs come back at the capt
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import replace
 from pathlib import Path
 
@@ -72,13 +73,17 @@ def test_evaluation_reads_native_outputs_back_at_the_working_size(
     assert metrics["summary"] == inline["summary"]
 
 
-def test_cli_flags_override_the_preset_budget(scene: Path, tmp_path: Path) -> None:
+def test_cli_flags_override_the_preset_budget(
+    scene: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="dcseg.io.captures")
     out = tmp_path / "rec"
     args = ["reconstruct", str(scene), "--out", str(out), "--iterations", "2", "--holdout", "0"]
     assert main([*args, "--max-side", "native", "--keyframes", "2"]) == 0
     capture = json.loads((out / "reconstruction.json").read_text())["capture"]
     assert capture["size"] == [160, 120] and capture["kept"] == 2
     assert capture["budget"]["max_side"] is None
+    assert "training at 160x120 (160x120 / 1, native); 2 of 5 frames" in caplog.text
     with pytest.raises(SystemExit, match=r"--keyframes \(options.budget.max_frames\)"):
         main([*args, "--keyframes", "none"])
 

@@ -12,8 +12,8 @@ import pytest
 
 from dcseg import client as client_module
 from dcseg.cli import main
-from dcseg.cli.download import FORMATS as CLI_FORMATS
 from dcseg.client import ApiError, Client, matches, select
+from dcseg.export import FORMATS as EXPORT_FORMATS
 from service.exports import FORMATS
 from service.main import create_app
 from tests.service.conftest import AUTH_A, KEY_A, TAR, TestClient, make_settings
@@ -154,12 +154,12 @@ def test_cli_refusals(cli, tmp_path, capsys, argv, code, message):
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("argv", [["--instance", "0", "--format", "ply"], ["--format", "obj"]])
+@pytest.mark.parametrize("argv", [["--instance", "0", "--format", "ply"], ["--format", "fbx"]])
 def test_cli_bad_arguments_exit_2(cli, tmp_path, argv):
     with pytest.raises(SystemExit) as stopped:
         main(["download", cli, str(tmp_path / "out"), *argv])
     assert stopped.value.code == 2
 
 
-def test_cli_and_service_offer_the_same_formats():
-    assert tuple(CLI_FORMATS) == tuple(FORMATS)
+def test_the_service_offers_every_export_format():
+    assert tuple(FORMATS) == tuple(EXPORT_FORMATS)

@@ -15,9 +15,19 @@ from typing import Any
 import numpy as np
 import pytest
 
+from service.exports import fetch_run
 from service.main import create_app
-from tests.service.conftest import AUTH_A, AUTH_B, TAR, TestClient, assert_problem, make_settings
-from tests.service.segmented import OBJECTS, run_segmented_job
+from tests.service.conftest import (
+    AUTH_A,
+    AUTH_B,
+    TAR,
+    TestClient,
+    assert_problem,
+    make_settings,
+    state_of,
+    wait_for,
+)
+from tests.service.segmented import OBJECTS, run_segmented_job, segment_files
 
 FAKE = "tests.service.fake_export:export_run"
 
@@ -83,7 +93,7 @@ def test_instance_export_holds_that_object_only(env, log):
     record = client.get(f"/v1/jobs/{job}/instances/3", headers=AUTH_A).json()
     url = record["links"]["exports"]["glb"]
     assert url == f"/v1/jobs/{job}/instances/3/exports/glb"
-    assert set(record["links"]["exports"]) == {"ply", "spz", "splat", "glb"}
+    assert set(record["links"]["exports"]) == {"ply", "spz", "splat", "glb", "obj"}
     body = client.get(url, headers=AUTH_A).json()
     assert body["instance"] == 3 and [f["name"] for f in body["files"]] == ["objects/3.glb"]
     data = client.get(body["files"][0]["url"], headers=AUTH_A)
@@ -109,7 +119,7 @@ def test_export_files_before_and_outside_the_export_are_404(env):
 
 def test_bad_format_instance_tenant_and_state(env):
     client, job = env
-    bad = assert_problem(client.get(f"/v1/jobs/{job}/exports/obj", headers=AUTH_A), 422)
+    bad = assert_problem(client.get(f"/v1/jobs/{job}/exports/fbx", headers=AUTH_A), 422)
     assert [e["path"] for e in bad["errors"]] == ["path.format"]
     assert_problem(client.get(f"/v1/jobs/{job}/instances/99/exports/ply", headers=AUTH_A), 404)
     assert_problem(client.get(f"/v1/jobs/{job}/instances/0/exports/ply", headers=AUTH_A), 422)
@@ -209,12 +219,16 @@ def test_an_export_the_run_cannot_make_names_the_problem_without_storage_paths(
 
 
 @pytest.mark.parametrize("mode", ["crash", "raise"])
-def test_a_crashing_exporter_is_a_500_with_an_error_id(env, monkeypatch, tmp_path, mode):
+def test_a_crashing_exporter_is_a_500_with_an_error_id(env, monkeypatch, tmp_path, log, mode):
     client, job = env
     monkeypatch.setenv("FAKE_EXPORT_MODE", mode)
     body = assert_problem(client.get(f"/v1/jobs/{job}/exports/splat", headers=AUTH_A), 500)
     assert body["type"].endswith("export-error") and "internal error" in body["detail"]
     assert str(tmp_path) not in json.dumps(body) and "boom" not in json.dumps(body)
+    # not cached: the next request tries again, and succeeds once the exporter does
+    monkeypatch.setenv("FAKE_EXPORT_MODE", "")
+    assert client.get(f"/v1/jobs/{job}/exports/splat", headers=AUTH_A).status_code == 200
+    assert _calls(log) == 2
 
 
 def test_deleting_the_job_removes_its_exports(env, tmp_path):
@@ -238,3 +252,61 @@ def test_fake_exporter_partitions_the_labelled_gaussians(env):
     ]
     flat = np.concatenate(rows)
     assert len(flat) == len(set(flat.tolist())) == sum(n for *_, n in OBJECTS)
+
+
+class ObjectStorageLike:
+    """A storage that is not local (as S3): delegates to another, counting reads."""
+
+    backend = "s3"
+
+    def __init__(self, inner: Any, corrupt: str | None = None) -> None:
+        self.inner, self.corrupt, self.reads = inner, corrupt, 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def read(self, tenant: str, item: Any, start: int, end: int) -> Iterator[bytes]:
+        self.reads += 1
+        for chunk in self.inner.read(tenant, item, start, end):
+            yield b"x" + chunk[1:] if item.name == self.corrupt else chunk
+
+
+def test_jobs_in_object_storage_are_fetched_once_then_exported(env, tmp_path, log):
+    client, job = env
+    state = state_of(client)
+    state.storage = ObjectStorageLike(state.storage)
+    body = client.get(f"/v1/jobs/{job}/instances/2/exports/ply", headers=AUTH_A).json()
+    assert [f["name"] for f in body["files"]] == ["objects/2.ply"]
+    fetched = tmp_path / "data" / "jobs" / job / "exports" / "run"
+    assert sorted(p.name for p in fetched.iterdir()) == sorted(segment_files())
+    reads = state.storage.reads
+    assert client.get(f"/v1/jobs/{job}/exports/ply", headers=AUTH_A).status_code == 200
+    assert state.storage.reads == reads + 1  # instances.json only: the run is fetched already
+    assert _calls(log) == 2
+
+
+def test_a_corrupt_stored_file_is_not_exported(env, tmp_path):
+    client, job = env
+    state = state_of(client)
+    state.storage = ObjectStorageLike(state.storage, corrupt="segment/scene_labelled.ply")
+    with pytest.raises(OSError, match="SHA-256 mismatch"):
+        fetch_run(state.storage, "tenant-a", job, tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".tmp-run")] == []
+
+
+def test_shutdown_kills_a_running_export(tmp_path, scene_tar, monkeypatch):
+    monkeypatch.setenv("FAKE_EXPORT_MODE", "sleep")
+    monkeypatch.setenv("FAKE_EXPORT_SLEEP_S", "60")
+    with _client(tmp_path, export_wait_s=0.5) as client:
+        job = _job(client, scene_tar)
+        assert client.get(f"/v1/jobs/{job}/exports/glb", headers=AUTH_A).status_code == 202
+        exporter = client.app.state.exporter  # type: ignore[attr-defined]
+        children = list(exporter._children)
+        assert len(children) == 1 and children[0].poll() is None
+    started = time.monotonic()
+    children[0].wait(10)
+    assert children[0].returncode is not None and time.monotonic() - started < 10
+    folder = tmp_path / "data" / "jobs" / job / "exports" / "scene" / "glb"
+    wait_for(lambda: not any(folder.parent.glob(".tmp-*")), timeout=10)
+    assert not folder.exists()  # neither a half-made export nor a failure is kept

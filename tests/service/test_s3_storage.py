@@ -216,3 +216,45 @@ def test_a_derived_job_reuses_the_parents_stage_from_the_bucket(client, scene_ta
     stages = storage.manifest("tenant-a", child["id"])["stages"]
     assert stages[0]["details"] == {"reused": True}
     assert all(f"jobs/{child['id']}/attempts/" in i["key"] for i in stages[0]["files"].values())
+
+
+class _Recording(httpx.BaseTransport):
+    """The API's transport, remembering the paths asked for."""
+
+    def __init__(self, inner: httpx.BaseTransport) -> None:
+        self.inner, self.paths = inner, []  # type: ignore[var-annotated]
+
+    def handle_request(self, request: httpx.Request) -> httpx.Response:
+        self.paths.append(request.url.path)
+        return self.inner.handle_request(request)
+
+
+@pytest.mark.parametrize("expiry_s", [300, 1])
+def test_the_client_follows_presigned_urls_and_falls_back(
+    s3_server,  # noqa: F811
+    tmp_path,
+    scene_tar,
+    expiry_s,
+):
+    from dcseg.client import Client
+    from tests.service.conftest import KEY_A
+
+    settings = s3_settings(s3_server, tmp_path, presign_expiry_s=expiry_s)
+    with TestClient(create_app(settings)) as test_client:
+        job_id = _run_job(test_client, scene_tar)
+        transport = _Recording(test_client._transport)
+        with Client("http://testserver", KEY_A, transport=transport) as client:
+            if expiry_s == 1:  # every presigned URL has expired by the time it is used
+                listing = client.artifacts(job_id)
+                url = listing[0]["download_url"]
+                deadline = time.monotonic() + 60
+                while httpx.get(url).status_code == 200:
+                    assert time.monotonic() < deadline
+                    time.sleep(0.5)
+                client.artifacts = lambda job_id: listing  # type: ignore[method-assign,assignment]
+            files = client.download(job_id, tmp_path / "out")
+        assert (tmp_path / "out" / "one" / "out.txt").read_bytes() == PAYLOAD
+        assert (tmp_path / "out" / "two" / "sub" / "rev.bin").read_bytes() == PAYLOAD[::-1]
+        assert len(files) == 2
+        proxied = [p for p in transport.paths if "/artifacts/" in p]
+        assert len(proxied) == (2 if expiry_s == 1 else 0)

@@ -66,7 +66,7 @@ def splats_of(
         log_scales=np.full((n, 3), np.log(0.01), np.float32),
         opacity_logits=rng.normal(2.0, 0.5, n).astype(np.float32),
         sh=sh,
-        ints={"instance_id": ids, "semantic_id": classes},
+        ints={"instance_id": ids, "semantic_id": classes, "cluster_id": ids.copy()},
     )
 
 

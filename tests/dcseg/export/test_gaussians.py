@@ -36,6 +36,7 @@ def test_per_instance_plys_partition_the_labelled_gaussians(run: Path, ply_out: 
     for record in table["instances"]:
         part = read_splat_table(ply_out / record["file"])
         assert np.all(part.ints["instance_id"] == record["id"])
+        assert set(part.ints) == {"instance_id", "semantic_id", "cluster_id"}  # columns kept
         assert len(part) == record["n_gaussians"] == int((ids == record["id"]).sum())
         assert np.array_equal(part.sh, source.sh[ids == record["id"]])
         parts.append(part.means)

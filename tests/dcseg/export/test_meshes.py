@@ -16,8 +16,9 @@ from dcseg.export import ExportOptions, export_run
 from dcseg.export.depth import run_views
 from dcseg.export.surface import extract
 from dcseg.export.tsdf import fuse
+from dcseg.io.captures.manifest import write_capture
 from tests.dcseg.export.runs import BOX, CLASSES, FLOOR_LEFT, FLOOR_RIGHT
-from tests.dcseg.reconstruct.scene import BOX_HI, surface_distance
+from tests.dcseg.reconstruct.scene import BOX_HI, make_capture, surface_distance
 
 OPTIONS = ExportOptions(voxel_size=0.025, max_faces=1500)
 Y_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
@@ -54,6 +55,8 @@ def test_glb_has_one_node_per_object_with_its_class_and_score(run: Path, glb: Pa
         assert extras["class"] == record["label"] == CLASSES[extras["class_id"]]
         assert extras["score"] == pytest.approx(record["score"])
         assert extras["name"] == node
+    table = json.loads((glb.parent / "instances.glb.json").read_text())
+    assert sorted(r["node"] for r in table["instances"]) == nodes
 
 
 def test_glb_nodes_are_turned_to_y_up_and_meshes_decimated(glb: Path) -> None:
@@ -102,8 +105,22 @@ def test_a_run_without_depth_asks_for_the_capture(run: Path, tmp_path: Path) -> 
     shutil.rmtree(bare / "state")
     with pytest.raises(InputError, match="holds no depth.*is gone; give the capture.*--capture"):
         export_run(bare, tmp_path / "out", "glb", options=OPTIONS)
-    assert not (tmp_path / "out" / "scene.glb").exists()
+    assert list((tmp_path / "out").iterdir()) == []  # no partial files, no staging folder
     export_run(bare, tmp_path / "out", "ply")  # Gaussian formats need no depth
+
+
+def test_a_run_without_depth_is_meshed_from_its_capture(run: Path, tmp_path: Path) -> None:
+    bare = tmp_path / "bare"
+    shutil.copytree(run, bare)
+    shutil.rmtree(bare / "state")
+    capture = tmp_path / "capture"
+    write_capture(make_capture(8, 64, 48), capture)
+    options = ExportOptions(voxel_size=0.025, max_faces=1500, capture=capture)
+    export_run(bare, tmp_path / "out", "glb", options=options)
+    scene = trimesh.load_scene(tmp_path / "out" / "scene.glb")
+    assert sorted(scene.graph.nodes_geometry) == ["box_1", "floor_2", "floor_3"]
+    frame = json.loads((tmp_path / "out" / "frame.json").read_text())
+    assert frame["world"]["up_axis"] == "+z"  # poses from the capture too
 
 
 def test_a_grid_over_the_voxel_limit_is_refused(run: Path, tmp_path: Path) -> None:

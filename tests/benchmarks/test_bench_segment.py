@@ -1,0 +1,59 @@
+"""bench_segment's summary: tuning and held-out layouts apart, means over runs and seeds."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from benchmarks.bench_segment import markdown, overridden, summarise
+from dcseg.config import preset
+
+
+def row(noise: str, layout: int, group: str, naive: float, ours: list[float]) -> dict[str, Any]:
+    semantic = {"miou": naive, "macc": naive, "no_prediction": 1.0}
+    return {
+        "noise": noise,
+        "layout": layout,
+        "group": group,
+        "baselines": {
+            "naive_fusion": semantic,
+            "vote3d_nearest": semantic,
+            "vote3d_projection": semantic,
+        },
+        "dcseg": [
+            {
+                "cluster_seed": i,
+                "segment_seconds": 1.0,
+                "nearest": {"miou": v, "macc": v, "no_prediction": 0.5},
+                "projection": {"miou": v, "macc": v, "no_prediction": 0.5},
+                "instances": {"f1": 80.0, "precision": 70.0, "recall": 90.0, "mcov": 75.0},
+            }
+            for i, v in enumerate(ours)
+        ],
+    }
+
+
+def test_held_out_layouts_are_summarised_apart_from_tuning_ones() -> None:
+    rows = [
+        row("default", 0, "tuning", 70.0, [90.0, 92.0]),
+        row("default", 3, "heldout", 70.0, [80.0, 82.0]),
+        row("default", 4, "heldout", 60.0, [70.0, 72.0]),
+    ]
+    summary = summarise(rows)
+    held, tuned = summary["default"]["heldout"], summary["default"]["tuning"]
+    assert tuned["dcseg_nearest"]["mean"] == 91.0 and tuned["layouts"] == [0]
+    assert held["dcseg_nearest"]["mean"] == 76.0 and held["dcseg_nearest"]["n"] == 4
+    assert held["naive_fusion"]["mean"] == 65.0 and held["naive_fusion"]["n"] == 2
+    assert held["margins"]["nearest_minus_naive"]["mean"] == 11.0  # per run: 11 and 11
+    assert held["dcseg_nearest"]["std"] == pytest.approx(
+        5.89, abs=0.01
+    )  # sample std of 80, 82, 70, 72
+    table = markdown(summary)
+    assert "| default | heldout 3,4 | 65.0 ± 7.1 |" in table
+    assert "| default | tuning 0 |" in table
+
+
+def test_overrides_reach_the_named_section() -> None:
+    cfg = overridden(preset("fast"), ["assign.complete=false", "scale=0.5"])
+    assert cfg.assign.complete is False and cfg.scale == 0.5

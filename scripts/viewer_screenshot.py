@@ -3,12 +3,14 @@
     python scripts/viewer_screenshot.py runs/demo/run docs/viewer.png --hide-class wall
 
 Serves RUN like ``dcseg view``, opens it in headless Chromium (tests/dcseg/viewer/browser.py),
-hides the given classes, optionally selects the object under a given pixel and writes the page.
+hides the given classes, optionally selects an object (a click on its centroid) and writes the
+page.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -18,7 +20,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dcseg.viewer.server import serving  # noqa: E402
-from tests.dcseg.viewer.browser import chromium_path, launch, open_viewer, settled  # noqa: E402
+from tests.dcseg.viewer.browser import (  # noqa: E402
+    chromium_path,
+    launch,
+    open_viewer,
+    settled,
+    viewer_call,
+)
 
 
 def main() -> int:
@@ -27,7 +35,7 @@ def main() -> int:
     parser.add_argument("out", type=Path)
     parser.add_argument("--hide-class", action="append", default=[], help="class name to hide")
     parser.add_argument("--mode", choices=("instance", "class", "rgb"), default="instance")
-    parser.add_argument("--click", help="x,y of a click selecting an object")
+    parser.add_argument("--select", type=int, help="click the centroid of this instance id")
     parser.add_argument("--size", default="1200x720", help="viewport WxH")
     args = parser.parse_args()
     executable = chromium_path()
@@ -42,9 +50,11 @@ def main() -> int:
         for name in args.hide_class:
             rows = page.locator("#classes .row", has_text=f"{name} (")
             rows.locator("input").uncheck()
-        if args.click:
-            x, y = (float(v) for v in args.click.split(","))
-            page.mouse.click(x, y)
+        if args.select is not None:
+            records = json.loads((args.run / "instances.json").read_text())["instances"]
+            centroid = next(r["centroid"] for r in records if r["id"] == args.select)
+            xy = viewer_call(page, "(v, xyz) => v.project(xyz)", centroid)
+            page.mouse.click(xy["x"], xy["y"])
         settled(page)
         png = page.screenshot()
     image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)

@@ -40,7 +40,9 @@ class AssignConfig:
             one instance per cluster (the paper). Clusters stay available as the cluster level.
         contact_factor: two Gaussians touch when their centres are closer than this many times
             the median nearest-neighbour spacing of the scene's Gaussians; used for cluster
-            adjacency, stuff surfaces and label completion.
+            adjacency and label completion. The median comes from the dense objects; walls are
+            sparser: on the 40-view synthetic scenes each wall's Gaussians fall apart into
+            thousands of pieces at 3x and are connected at 6x.
         neighbours: nearest neighbours looked at per Gaussian (adjacency and completion).
         min_contacts: clusters are adjacent when at least this many of their Gaussians touch.
         merge_min_cosine: adjacent clusters of one (non-stuff) class merge into one object when
@@ -50,16 +52,12 @@ class AssignConfig:
         stuff_classes: class names that are surfaces, not objects: each connected surface of
             such a class is one region, whatever its clusters (names absent from the
             vocabulary are ignored).
-        surface_min_normal_cosine: two neighbouring stuff Gaussians are on one surface when
-            the |cosine| of their local normals (PCA of their neighbourhood) is at least this
-            (0.8 = 37 degrees) ...
-        surface_max_tilt: ... and the link between them lies in both tangent planes: the
-            |cosine| of the link with either normal is at most this (0.3 = 17 degrees). The
-            Gaussians on a corner have normals between the two walls' and pass the normal test
-            with both; the tilt test cuts them off, so walls meeting at a corner are two regions.
-        stuff_min_fraction: a stuff region smaller than this fraction of its class's largest
-            region (a corner's sliver of Gaussians between two walls) is no region: its
-            Gaussians join a near region of their class.
+        surface_min_normal_cosine: two touching clusters of a stuff class are one surface when
+            the |cosine| of their plane normals (least-variance direction of each cluster's
+            Gaussian centres) is at least this (0.8 = 37 degrees) ...
+        surface_max_tilt: ... and the step between their centroids lies in both planes: its
+            |cosine| with either normal is at most this (0.3 = 17 degrees). Walls meeting at a
+            corner fail both tests and stay two regions, as do a floor and a raised platform.
         min_instance_gaussians: objects and stuff regions with fewer Gaussians are left out of
             the instance list (their Gaussians keep their class, instance -1).
         complete: label completion (:mod:`dcseg.assign.completion`): unlabelled Gaussians next
@@ -75,7 +73,7 @@ class AssignConfig:
     min_area: int = 1000
     min_share_ratio: float = 0.5
     objects: bool = True
-    contact_factor: float = 3.0
+    contact_factor: float = 6.0
     neighbours: int = 8
     min_contacts: int = 5
     merge_min_cosine: float = 0.5
@@ -83,7 +81,6 @@ class AssignConfig:
     stuff_classes: tuple[str, ...] = ("wall", "floor", "ceiling")
     surface_min_normal_cosine: float = 0.8
     surface_max_tilt: float = 0.3
-    stuff_min_fraction: float = 0.05
     min_instance_gaussians: int = 20
     complete: bool = True
     completion_rounds: int = 3
@@ -125,7 +122,5 @@ class AssignConfig:
         ):
             if not -1.0 <= cos <= 1.0:
                 raise ValueError(f"{name} must be in [-1, 1], got {cos}")
-        if not 0.0 <= self.stuff_min_fraction <= 1.0:
-            raise ValueError(f"stuff_min_fraction must be in [0, 1], got {self.stuff_min_fraction}")
         if self.evidence_weight < 0:
             raise ValueError(f"evidence_weight must be >= 0, got {self.evidence_weight}")

@@ -12,9 +12,9 @@ with a documented threshold of :class:`~dcseg.assign.config.AssignConfig`:
 3. **Merging** (union-find): touching clusters of the same class whose feature centres
    (cosine >= ``merge_min_cosine``) and class votes over views (cosine >=
    ``merge_min_vote_cosine``) agree are one object. Stuff classes (walls, floor ...) ignore
-   clusters: every connected surface of the class is one region (a graph over its Gaussians'
-   nearest neighbours, linked where their local normals agree, so that walls meeting at a
-   corner are two surfaces).
+   features: touching clusters of the class merge when they are coplanar (their planes' normals
+   agree and each lies in the other's plane), so every connected surface is one region and
+   walls meeting at a corner are two.
 
 Objects and regions with fewer than ``min_instance_gaussians`` Gaussians dissolve; their
 Gaussians, and labelled Gaussians outside every cluster, join the object or region of a near
@@ -30,8 +30,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.cluster.hierarchy import DisjointSet
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from dcseg.assign.config import AssignConfig
@@ -145,11 +143,13 @@ def merge_clusters(
     votes: NDArray[np.float64],
     stuff: NDArray[np.bool_],
     cfg: AssignConfig,
+    planes: tuple[NDArray[np.float64], NDArray[np.float64]],
 ) -> NDArray[np.int64]:
     """Union-find over clusters (step 3): ``[K]`` root cluster of each labelled cluster, -1 else.
 
-    Adopted clusters join their ``parent``; touching same-class, non-stuff clusters merge when
-    features and votes agree (see the module docstring).
+    Adopted clusters join their ``parent``; touching same-class clusters merge when features
+    and votes agree, or, for stuff classes, when they are coplanar (:func:`coplanar`;
+    ``planes`` from :func:`cluster_planes`).
     """
     k = len(classes)
     sets = DisjointSet(range(k))
@@ -157,89 +157,51 @@ def merge_clusters(
         sets.merge(int(child), int(parent[child]))
     a, b = pairs[:, 0], pairs[:, 1]
     same = (counts >= cfg.min_contacts) & (classes[a] >= 0) & (classes[a] == classes[b])
-    same &= ~stuff[np.maximum(classes[a], 0)]
     a, b = a[same], b[same]
     features = np.asarray(centers, dtype=np.float64)
-    ok = _cosine(features, a, b) >= cfg.merge_min_cosine
-    ok &= _cosine(votes, a, b) >= cfg.merge_min_vote_cosine
+    alike = _cosine(features, a, b) >= cfg.merge_min_cosine
+    alike &= _cosine(votes, a, b) >= cfg.merge_min_vote_cosine
+    ok = np.where(stuff[classes[a]], coplanar(*planes, a, b, cfg), alike)
     for x, y in zip(a[ok], b[ok], strict=True):
         sets.merge(int(x), int(y))
     roots = np.array([sets[i] for i in range(k)], dtype=np.int64)
     return np.where(classes >= 0, roots, -1)
 
 
-def surface_normals(means: NDArray[np.float64], idx: NDArray[np.int64]) -> NDArray[np.float64]:
-    """``[M, 3]`` unit normal of each point's neighbourhood (``idx [M, k]`` into ``means``,
-    missing = ``len(means)``): the direction of least variance of the found neighbours."""
-    found = idx < len(means)
-    pts = means[np.where(found, idx, 0)]
-    w = found[..., None].astype(np.float64)
-    centre = (pts * w).sum(axis=1) / np.maximum(w.sum(axis=1), 1.0)
-    d = (pts - centre[:, None, :]) * w
-    cov = np.einsum("mki,mkj->mij", d, d)
+def cluster_planes(
+    means: NDArray[np.float64], cluster_labels: NDArray[np.int64], k: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``centroids [K, 3]`` and unit ``normals [K, 3]`` (direction of least variance) of every
+    cluster's Gaussian centres; zeros for empty clusters."""
+    member = cluster_labels >= 0
+    lab, pts = cluster_labels[member], means[member]
+    count = np.maximum(np.bincount(lab, minlength=k), 1).astype(np.float64)
+    sums = np.stack([np.bincount(lab, pts[:, i], k) for i in range(3)], axis=1)
+    centroids: NDArray[np.float64] = sums.astype(np.float64) / count[:, None]
+    d = pts - centroids[lab]
+    cov = np.zeros((k, 3, 3))
+    np.add.at(cov, lab, d[:, :, None] * d[:, None, :])
     _, vectors = np.linalg.eigh(cov)
     normals: NDArray[np.float64] = vectors[:, :, 0]
-    return normals
+    return centroids, normals
 
 
-def _coplanar(
-    pts: NDArray[np.float64],
+def coplanar(
+    centroids: NDArray[np.float64],
     normals: NDArray[np.float64],
-    src: NDArray[np.int64],
-    dst: NDArray[np.int64],
-    min_cos: float,
-    tilt: float,
-) -> NDArray[np.bool_]:
-    """Links on one surface: normals agree (|cos| >= ``min_cos``) and the link lies in both
-    tangent planes (its |cosine| with either normal is at most ``tilt``)."""
-    same = np.abs(np.einsum("ij,ij->i", normals[src], normals[dst])) >= min_cos
-    step = pts[dst] - pts[src]
-    step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-12)
-    flat_src = np.abs(np.einsum("ij,ij->i", normals[src], step)) <= tilt
-    flat_dst = np.abs(np.einsum("ij,ij->i", normals[dst], step)) <= tilt
-    out: NDArray[np.bool_] = same & flat_src & flat_dst
-    return out
-
-
-def stuff_regions(
-    means: NDArray[np.float64],
-    semantic: NDArray[np.int64],
-    stuff: NDArray[np.bool_],
-    radius: float,
+    a: NDArray[np.int64],
+    b: NDArray[np.int64],
     cfg: AssignConfig,
-) -> NDArray[np.int64]:
-    """``[N]`` connected-surface id of every stuff-class Gaussian (-1 for the others).
-
-    Two Gaussians of the same stuff class are linked when one is among the other's
-    ``neighbours`` nearest within ``radius``, their local surface normals agree (|cosine|
-    >= ``surface_min_normal_cosine``) and the link lies in both tangent planes
-    (:func:`_coplanar`), so walls meeting at a corner are separate surfaces. Regions smaller
-    than ``stuff_min_fraction`` x the largest region of their class (the corner's own sliver of
-    Gaussians) get -1.
-    """
-    out = np.full(len(semantic), -1, dtype=np.int64)
-    rows = np.flatnonzero((semantic >= 0) & stuff[np.maximum(semantic, 0)])
-    if len(rows) == 0:
-        return out
-    k = min(cfg.neighbours + 1, len(rows))
-    pts = means[rows]
-    _, idx = cKDTree(pts).query(pts, k=k, distance_upper_bound=radius)
-    idx = np.asarray(idx, dtype=np.int64).reshape(len(rows), k)
-    normals = surface_normals(pts, idx)
-    found = idx < len(rows)
-    src = np.repeat(np.arange(len(rows)), k).reshape(len(rows), k)[found]
-    dst = idx[found]
-    cls = semantic[rows]
-    keep = (cls[src] == cls[dst]) & _coplanar(
-        pts, normals, src, dst, cfg.surface_min_normal_cosine, cfg.surface_max_tilt
-    )
-    graph = coo_matrix((np.ones(int(keep.sum())), (src[keep], dst[keep])), shape=(len(rows),) * 2)
-    _, component = connected_components(graph, directed=False)
-    sizes = np.bincount(component)
-    largest = np.zeros(int(cls.max()) + 1, dtype=np.int64)
-    np.maximum.at(largest, cls, sizes[component])
-    big = sizes[component] >= cfg.stuff_min_fraction * largest[cls]
-    out[rows] = np.where(big, component, -1)
+) -> NDArray[np.bool_]:
+    """Cluster pairs on one surface: their normals agree (|cos| >= ``surface_min_normal_cosine``)
+    and the step between their centroids lies in both planes (its |cosine| with either normal
+    is at most ``surface_max_tilt``)."""
+    same = np.abs(np.einsum("ij,ij->i", normals[a], normals[b])) >= cfg.surface_min_normal_cosine
+    step = centroids[b] - centroids[a]
+    step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-12)
+    flat_a = np.abs(np.einsum("ij,ij->i", normals[a], step)) <= cfg.surface_max_tilt
+    flat_b = np.abs(np.einsum("ij,ij->i", normals[b], step)) <= cfg.surface_max_tilt
+    out: NDArray[np.bool_] = same & flat_a & flat_b
     return out
 
 
@@ -348,13 +310,13 @@ def object_instances(
     stuff = np.zeros(max(n_classes, int(semantic.max(initial=-1)) + 1), dtype=bool)
     stuff[[s for s in stuff_ids if 0 <= s < len(stuff)]] = True
     f = fragments
-    roots = merge_clusters(f.classes, f.parent, f.pairs, f.counts, centers, votes, stuff, cfg)
+    planes = cluster_planes(xyz, labels, k)
+    roots = merge_clusters(
+        f.classes, f.parent, f.pairs, f.counts, centers, votes, stuff, cfg, planes
+    )
     group = np.where(labels >= 0, roots[np.maximum(labels, 0)], -1) if k else labels.copy()
-    thing = (semantic >= 0) & ~stuff[np.maximum(semantic, 0)]
     own = (labels >= 0) & (semantic == (f.classes[np.maximum(labels, 0)] if k else -2))
-    group = np.where(thing & own, group, -1)
-    regions = stuff_regions(xyz, semantic, stuff, radius, cfg)
-    group = np.where(regions >= 0, k + regions, group)
+    group = np.where((semantic >= 0) & own, group, -1)
     group = _drop_small(group, cfg.min_instance_gaussians)
     group = _attach_loose(xyz, semantic, group, radius, cfg.neighbours)
     scores = cluster_scores[np.maximum(labels, 0)] if k else np.zeros(len(labels))

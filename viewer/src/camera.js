@@ -24,7 +24,7 @@ export function frame(camera, controls, bounds, up) {
   if (side.lengthSq() < 1e-9) side.set(1, 0, 0).projectOnPlane(up);
   side.normalize();
   const direction = side.multiplyScalar(0.9).add(up.clone().multiplyScalar(1.1)).normalize();
-  const distance = radius / Math.tan(THREE.MathUtils.degToRad(camera.fov / 2)) * 1.3;
+  const distance = radius / Math.tan(THREE.MathUtils.degToRad(camera.fov / 2)) * 0.75;
   camera.up.copy(up);
   camera.position.copy(centre).addScaledVector(direction, distance);
   camera.near = distance / 200;

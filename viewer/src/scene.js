@@ -4,7 +4,7 @@ import { PackedSplats, SplatMesh, utils } from "@sparkjsdev/spark";
 import { NONE_RGB, SH_C0, clamp01, paletteRgb, sigmoid } from "./colours.js";
 import { column, parsePly } from "./ply.js";
 
-const DIM = 0.35; // colour factor of the objects around a selection
+const DIM = 0.5; // colour factor of the objects around a selection
 
 /** Decode the Gaussians and their ids; throws naming the file and the missing property. */
 export function readLabelledScene(buffer, name) {

@@ -109,18 +109,19 @@ def test_an_unlabelled_fragment_joins_its_neighbour_and_a_lonely_one_is_dropped(
 
 
 def test_stuff_is_one_region_per_connected_surface() -> None:
-    """A floor cluster covering two separate patches is two regions; a wall cut into three
-    clusters with unlike features is one."""
+    """Two floor clusters apart are two regions; a wall cut into three touching clusters with
+    unlike features is one (stuff ignores features)."""
     floor_a, floor_b = patch(0, 0.5, 0, 0.5), patch(1.5, 2.0, 0, 0.5)
     wall = [patch(x, x + 0.3, 2, 2.3) for x in (0.0, 0.3, 0.6)]
-    parts = [(floor_a, 0), (floor_b, 0), (wall[0], 1), (wall[1], 2), (wall[2], 3)]
-    centers = [unit(1, 0, 0), unit(0, 1, 0), unit(0, 0, 1), unit(1, 1, 0)]
-    result, labels, _ = build(parts, [FLOOR, WALL, WALL, WALL], centers)
+    parts = [(floor_a, 0), (floor_b, 1), (wall[0], 2), (wall[1], 3), (wall[2], 4)]
+    centers = [unit(1, 0, 0), unit(0, 1, 0), unit(0, 0, 1), unit(1, 1, 0), unit(1, 0, 1)]
+    result, labels, _ = build(parts, [FLOOR, FLOOR, WALL, WALL, WALL], centers)
     assert sorted(result.classes.tolist()) == [WALL, FLOOR, FLOOR]
-    floor_ids = result.ids[: len(floor_a)], result.ids[len(floor_a) : len(floor_a) + len(floor_b)]
-    assert len(set(floor_ids[0])) == 1 and len(set(floor_ids[1])) == 1
-    assert floor_ids[0][0] != floor_ids[1][0]
-    assert len(set(result.ids[labels >= 1].tolist())) == 1
+    assert result.of_cluster[0] != result.of_cluster[1]
+    assert len(set(result.of_cluster[2:].tolist())) == 1
+    assert len(set(result.ids[labels >= 2].tolist())) == 1
+    things, _, _ = build(parts, [DUCK, DUCK, MUG, MUG, MUG], centers)
+    assert things.n_instances == 5, "objects with unlike features do not merge"
 
 
 def test_small_instances_are_left_out() -> None:
@@ -151,18 +152,24 @@ def test_thresholds_are_validated() -> None:
 
 
 def test_walls_meeting_at_a_corner_are_two_surfaces() -> None:
-    """One wall cluster bent round a corner: two regions (their normals differ); with the
-    surface tests off they are one."""
+    """Two touching wall clusters at a right angle are two regions (their planes differ);
+    with the surface tests off they are one."""
     flat = patch(0, 0.6, 0, 0.6)
     wall_x = np.stack([flat[:, 0], np.zeros(len(flat)), flat[:, 1]], axis=1)  # y = 0 plane
     wall_y = np.stack([np.zeros(len(flat)), flat[:, 0] + SPACING, flat[:, 1]], axis=1)  # x = 0
-    parts = [(wall_x, 0), (wall_y, 0)]
-    split, _, _ = build(parts, [WALL], [unit(1, 0, 0)])
+    parts = [(wall_x, 0), (wall_y, 1)]
+    centers = [unit(1, 0, 0)] * 2
+    split, _, _ = build(parts, [WALL, WALL], centers)
     assert split.n_instances == 2 and split.classes.tolist() == [WALL, WALL]
-    away = flat[:, 0] > 0.1  # the corner's own Gaussians may go either way
-    first, second = split.ids[: len(flat)][away], split.ids[len(flat) :][away]
-    assert len(set(first.tolist())) == 1 and len(set(second.tolist())) == 1
-    assert first[0] != second[0]
     off = AssignConfig(surface_min_normal_cosine=0.0, surface_max_tilt=1.0)
-    one, _, _ = build(parts, [WALL], [unit(1, 0, 0)], off)
+    one, _, _ = build(parts, [WALL, WALL], centers, off)
     assert one.n_instances == 1
+
+
+def test_a_raised_platform_is_not_the_floor() -> None:
+    """Parallel but offset: the step between the centroids leaves the planes."""
+    low, high = patch(0, 0.5, 0, 0.5), patch(0.5, 1.0, 0, 0.5, z=0.2)
+    bridge = patch(0.48, 0.52, 0, 0.5, z=0.1)  # they touch through a few Gaussians
+    parts = [(low, 0), (np.concatenate([high, bridge]), 1)]
+    result, _, _ = build(parts, [FLOOR, FLOOR], [unit(1, 0, 0)] * 2)
+    assert result.n_instances == 2

@@ -91,7 +91,11 @@ def viewer_call(page: Page, expression: str, arg: Any = None) -> Any:
 
 def screenshot(page: Page) -> NDArray[np.int16]:
     """The canvas as ``[H, W, 3]`` int16 RGB."""
-    png = page.locator("#canvas").screenshot()
+    # a page screenshot clipped to the canvas: an element screenshot first waits for the
+    # element to be "stable" over animation frames, which a busy software renderer delays
+    box = page.locator("#canvas").bounding_box()
+    assert box is not None, "the canvas is not displayed"
+    png = page.screenshot(clip=box)
     image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
     assert image is not None, "the canvas screenshot is not a readable PNG"
     rgb: NDArray[np.int16] = image[:, :, ::-1].astype(np.int16)

@@ -5,7 +5,8 @@ The first call answers one presigned ``PUT`` URL per part; the client sends the 
 store and completes with their ETags. The API then joins the parts, fetches the archive, checks
 its size and SHA-256 and validates it exactly like ``POST /v1/uploads`` (same pool, limits,
 quota and 422 problems); only a valid archive becomes an upload. Object storage only: with
-local storage both answer 501.
+local storage both answer 409 ``direct-uploads-unavailable`` (the server's configuration, not
+the request, is what conflicts; a 5xx would tell clients to retry).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ MAX_PARTS = 10_000
 def _s3(state: AppState) -> S3Storage:
     if not isinstance(state.storage, S3Storage):
         raise ApiProblem(
-            501,
+            409,
             "direct uploads need object storage (DCSEG_STORAGE_BACKEND=s3); this server stores"
             " files locally: send the archive to POST /v1/uploads",
             slug="direct-uploads-unavailable",
@@ -61,7 +62,7 @@ def _meta_key(storage: S3Storage, tenant: str, upload_id: str) -> str:
     "",
     status_code=201,
     response_model=DirectUploadPublic,
-    responses=problem_responses(401, 413, 422, 429, 501, 507),
+    responses=problem_responses(401, 409, 413, 422, 429, 507),
 )
 def create_direct_upload(
     body: DirectUploadCreate, state: StateDep, tenant: TenantDep
@@ -147,7 +148,7 @@ def _discard(storage: S3Storage, tenant: str, upload_id: str) -> None:
     "/{upload_id}:complete",
     status_code=201,
     response_model=UploadPublic,
-    responses=problem_responses(401, 404, 409, 413, 422, 429, 501, 503, 507),
+    responses=problem_responses(401, 404, 409, 413, 422, 429, 503, 507),
 )
 async def complete_direct_upload(
     upload_id: str,

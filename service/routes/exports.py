@@ -164,7 +164,7 @@ async def _serve(
 
 EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
     202: {"model": ExportPublic, "description": "being made; ask again after Retry-After"},
-    **problem_responses(401, 404, 409, 422, 500, 501),
+    **problem_responses(401, 404, 409, 422, 500),
 }
 
 
@@ -219,12 +219,12 @@ FILE_RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {"content": {"application/octet-stream": {}}, "description": "the file"},
     206: {"description": "Partial Content"},
     304: {"description": "Not Modified"},
-    **problem_responses(401, 404, 409, 416, 422, 501),
+    **problem_responses(401, 404, 409, 416, 422),
 }
 HEAD_RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {"description": "the headers of the download, no body"},
     304: {"description": "Not Modified"},
-    **problem_responses(401, 404, 409, 422, 501),
+    **problem_responses(401, 404, 409, 422),
 }
 SCENE_FILE = "/{job_id}/exports/{format}/{name:path}"
 INSTANCE_FILE = "/{job_id}/instances/{k}/exports/{format}/{name:path}"

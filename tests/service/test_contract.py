@@ -82,13 +82,16 @@ def test_api_image_requirements_cover_the_api_imports():
             if line and not line.startswith("#"):
                 yield re.split(r"[<>=\[ ]", line, maxsplit=1)[0].lower().replace("-", "_")
 
-    import_name = {"opencv_python_headless": "cv2", "scikit_learn": "sklearn"}
+    import_name = {"opencv_python_headless": "cv2", "scikit_learn": "sklearn", "pymcubes": "mcubes"}
     requirements = (REPO / "docker/api-requirements.txt").read_text().splitlines()
     image = {import_name.get(n, n) for n in names(requirements)}
     pyproject = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["dependencies"]
     project = {import_name.get(n, n) for n in names(pyproject)}
     code = (
         "import sys, service.main, service.uploads, dcseg.io.validate, dcseg.io.archive\n"
+        # the export child runs in the API image too (every format's writer)
+        "import service.export_child, dcseg.export.gaussians, dcseg.export.meshes\n"
+        "assert 'torch' not in sys.modules, 'an API-image import loaded torch'\n"
         "print(' '.join(sorted({m.split('.')[0] for m in sys.modules})))"
     )
     result = subprocess.run(

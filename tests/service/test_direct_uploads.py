@@ -118,11 +118,12 @@ def test_bad_requests_name_the_field(client):
     assert_problem(client.post("/v1/direct-uploads/nope:complete", json=parts, headers=AUTH_A), 404)
 
 
-def test_local_storage_answers_501(tmp_path):
+def test_local_storage_answers_409(tmp_path):
     with TestClient(create_app(make_settings(tmp_path))) as client:
         body = {"content_type": "application/x-tar", "size": 10}
-        problem = assert_problem(client.post("/v1/direct-uploads", json=body, headers=AUTH_A), 501)
+        problem = assert_problem(client.post("/v1/direct-uploads", json=body, headers=AUTH_A), 409)
+        assert problem["type"].endswith("direct-uploads-unavailable")
         assert "DCSEG_STORAGE_BACKEND" in problem["detail"]
         parts = {"parts": [{"part_number": 1, "etag": "x"}]}
         response = client.post("/v1/direct-uploads/x:complete", json=parts, headers=AUTH_A)
-        assert_problem(response, 501)
+        assert_problem(response, 409)

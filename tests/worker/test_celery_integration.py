@@ -146,13 +146,13 @@ def test_killed_worker_job_resumes_after_last_finished_stage(
 ):
     """SIGKILL a worker mid-reconstruction: the API notices the stale lease, requeues the job,
     and a second worker resumes it after ``validate`` without duplicate or partial artifacts."""
-    celery_env["DCSEG_HEARTBEAT_S"] = "0.3"
+    celery_env["DCSEG_HEARTBEAT_S"] = "1.0"
     settings = make_settings(
         tmp_path,
         broker_url=celery_env["DCSEG_BROKER_URL"],
         database_url=celery_env["DCSEG_DATABASE_URL"],
         gpu_queue=celery_env["DCSEG_GPU_QUEUE"],
-        heartbeat_s=0.3,
+        heartbeat_s=1.0,
         sweep_interval_s=0.3,
     )
     first = start_worker()
@@ -171,7 +171,7 @@ def test_killed_worker_job_resumes_after_last_finished_stage(
             job = client.get(f"/v1/jobs/{job_id}", headers=AUTH_A).json()
             return "step" in (job["progress"]["message"] or "")
 
-        wait_for(training, timeout=60, every=0.05)
+        wait_for(training, timeout=60, every=0.2)
         first.kill()
         first.wait(10)
         start_worker()

@@ -147,7 +147,7 @@ def test_redis_restarts_lose_no_job(private_redis, start_worker, scene, tmp_path
         tmp_path,
         broker_url=private_redis.url,
         gpu_queue=QUEUE,
-        heartbeat_s=0.5,
+        heartbeat_s=1.5,
         sweep_interval_s=0.3,
     )
     with TestClient(create_app(settings)) as client:

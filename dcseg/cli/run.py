@@ -52,7 +52,9 @@ def run(args: argparse.Namespace) -> int:
 def summary_line(record: dict[str, Any]) -> str:
     """One line for the terminal: counts and, with ground truth, the mIoU table."""
     counts = record["counts"]
-    text = f"{counts['clusters']} instances, {counts['labelled_clusters']} labelled"
+    clusters = f"{counts['clusters']} clusters, {counts['labelled_clusters']} labelled"
+    objects = counts.get("instances")  # absent from runs made before the object level
+    text = clusters if objects is None else f"{objects} objects ({clusters})"
     if record.get("metrics_summary"):
         text += " | " + json.dumps(record["metrics_summary"])
     return text

@@ -31,7 +31,7 @@ from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
-from dcseg.segment import class_agreement, class_evidence, cluster_map, label_map
+from dcseg.segment import class_evidence, cluster_map, label_map
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
 
 Progress = Callable[[str, float, str], None]
@@ -220,22 +220,34 @@ def segment_scene(
         cfg.assign,
     )  # fmt: skip
     on_progress("assign", 1.0, f"{int((assignment.labels >= 0).sum())} of {k} clusters labelled")
-    if cfg.assign.min_share_ratio > 0 and labelled:
-        clustering, assignment = _drop_inconsistent(trained, semantic, clustering, assignment, cfg)
+    a = cfg.assign
+    needed = (a.min_share_ratio > 0 and bool(labelled)) or a.objects or a.complete
+    # one pass over the views' blending weights serves the consistency step and the objects
+    evidence = _scene_evidence(trained, semantic, n_classes) if needed else None
+    if a.min_share_ratio > 0 and labelled and evidence is not None:
+        clustering, assignment = _drop_inconsistent(evidence, clustering, assignment, cfg)
         maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, "refine")
     semantic_ids = label_map(clustering.labels, assignment.labels)
     label_maps = {name: label_map(ids, assignment.labels) for name, ids in maps.items()}
     instances, semantic_ids = _objects(
-        trained, semantic, n_classes, clustering, assignment, semantic_ids, cfg, class_names
+        trained, evidence, clustering, assignment, semantic_ids, cfg, class_names
     )
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
     return Segmentation(clustering, assignment, instances, semantic_ids, maps, label_maps)
 
 
+def _scene_evidence(
+    trained: TrainedScene, semantic: Mapping[str, SemanticMap], n_classes: int
+) -> NDArray[np.float64]:
+    """``[N, C]`` class evidence of every Gaussian over the views that have class maps."""
+    views = [v for v in trained.views if v.name in semantic]
+    maps = [semantic[v.name].classes for v in views]
+    return class_evidence(_Blends(views), maps, len(trained.gaussians.means), n_classes)
+
+
 def _objects(
     trained: TrainedScene,
-    semantic: Mapping[str, SemanticMap],
-    n_classes: int,
+    evidence: NDArray[np.float64] | None,
     clustering: Clustering,
     assignment: Assignment,
     semantic_ids: NDArray[np.int64],
@@ -247,11 +259,8 @@ def _objects(
     labels = clustering.labels
     means = trained.gaussians.means.detach().cpu().numpy().astype(np.float64)
     radius = adaptive_radius(means, a.contact_factor, seed=cfg.seed)
-    if (not a.objects and not a.complete) or radius <= 0:
+    if (not a.objects and not a.complete) or radius <= 0 or evidence is None:
         return _per_cluster(labels, assignment), semantic_ids
-    views = [v for v in trained.views if v.name in semantic]
-    maps = [semantic[v.name].classes for v in views]
-    evidence = class_evidence(_Blends(views), maps, len(means), n_classes)
     fragments = adopt_fragments(means, labels, semantic_ids, evidence, radius, a)
     ids = fragments.semantic if a.objects else semantic_ids
     if a.complete:
@@ -292,18 +301,21 @@ def _cluster_maps(
 
 
 def _drop_inconsistent(
-    trained: TrainedScene,
-    semantic: Mapping[str, SemanticMap],
+    evidence: NDArray[np.float64],
     clustering: Clustering,
     assignment: Assignment,
     cfg: PipelineConfig,
 ) -> tuple[Clustering, Assignment]:
-    """Gaussians contradicted by their own class evidence become noise; empty clusters go."""
-    views = [v for v in trained.views if v.name in semantic]
+    """Gaussians contradicted by their own class evidence become noise; empty clusters go.
+
+    ``agree`` (evidence for the Gaussian's cluster class) and ``total`` (for any class) are
+    read off ``evidence`` (:func:`_scene_evidence`): the sums that
+    :func:`dcseg.segment.class_agreement` makes in a pass of its own.
+    """
     classes = label_map(clustering.labels, assignment.labels)
-    agree, total = class_agreement(
-        _Blends(views), [semantic[v.name].classes for v in views], classes
-    )
+    own = evidence[np.arange(len(classes)), np.maximum(classes, 0)]
+    agree = np.where(classes >= 0, own, 0.0)
+    total = evidence.sum(axis=1)
     labels = clustering.labels.copy()
     drop = inconsistent(clustering.labels, classes, agree, total, cfg.assign.min_share_ratio)
     labels[drop] = -1

@@ -16,6 +16,7 @@ from dcseg.evaluate.config import EvaluateConfig
 from dcseg.reconstruct.config import PRESETS as RECONSTRUCT_PRESETS
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.segment.config import MaskConfig
+from dcseg.sizes import RULE_PRESETS, SizeRules
 
 
 @dataclass(frozen=True)
@@ -137,6 +138,8 @@ class PipelineConfig:
         reconstruct, affinity, cluster, masks, assign, evaluate: each stage's own config.
         cache: the blending-weight cache truncation.
         budget: the working resolution and keyframes (:class:`FrameBudget`).
+        rules: how the stage values follow the run's views, pixels and Gaussians
+            (:mod:`dcseg.sizes`); the stage configs hold the values at the reference size.
         scale: the clustering scale in quantile space [0, 1] (:data:`DEFAULT_SCALE`; paper:
             0.8); re-clustering at another scale reuses everything trained.
         seed: the seed every stage's random choices derive from.
@@ -150,6 +153,7 @@ class PipelineConfig:
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     cache: CacheConfig = field(default_factory=CacheConfig)
     budget: FrameBudget = field(default_factory=FrameBudget)
+    rules: SizeRules = field(default_factory=SizeRules)
     scale: float = DEFAULT_SCALE
     seed: int = 0
 
@@ -207,6 +211,7 @@ _STAGES: dict[str, type[Any]] = {
     "evaluate": EvaluateConfig,
     "cache": CacheConfig,
     "budget": FrameBudget,
+    "rules": SizeRules,
 }
 
 
@@ -218,4 +223,5 @@ def preset(name: str) -> PipelineConfig:
         reconstruct=RECONSTRUCT_PRESETS[name],
         affinity=AFFINITY_PRESETS[name],
         budget=BUDGET_PRESETS[name],
+        rules=RULE_PRESETS[name],
     )

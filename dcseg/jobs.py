@@ -52,6 +52,7 @@ from dcseg.pipeline import (
     train_scene,
 )
 from dcseg.render import select_backend
+from dcseg.sizes import SceneSize, describe, resolve
 from dcseg.types import Capture, GroundTruth, Vocabulary
 
 if TYPE_CHECKING:
@@ -153,7 +154,7 @@ def run_job(
         gt = _read_gt(inputs.ground_truth, vocabulary)
     tmp = staging_dir(out)
     try:
-        trained = _train(inputs, capture, plan, cfg, clock, on_progress, device, tmp / "state")
+        trained, cfg = _train(inputs, capture, plan, cfg, clock, on_progress, device, tmp / "state")
         saved = replace(trained, semantic=dict(semantic), vocabulary=vocabulary)
         return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True, tmp=tmp)
     except BaseException:
@@ -179,7 +180,7 @@ def train_job(
         capture, plan = read_planned(inputs.capture, inputs.capture_options, cfg.budget)
     tmp = staging_dir(out)
     try:
-        saved = _train(inputs, capture, plan, cfg, clock, on_progress, device, tmp / "state")
+        saved, cfg = _train(inputs, capture, plan, cfg, clock, on_progress, device, tmp / "state")
         save_state(tmp, saved.trained, {}, None, saved.previews)
         record = _base_record(saved, cfg, clock)
         write_json(tmp / "run.json", record)
@@ -199,11 +200,14 @@ def _train(
     on_progress: Progress,
     device: str,
     state: Path,
-) -> SavedRun:
+) -> tuple[SavedRun, PipelineConfig]:
     """Read the class-agnostic masks, reconstruct and train: a run without class masks yet.
 
-    The blend-weight cache is written into ``state`` (the staged run's ``state/``) view by
-    view, so it is never held in memory as a whole."""
+    The size rules (:mod:`dcseg.sizes`) are applied as the sizes become known: views and pixels
+    before reconstruction, Gaussians after it. Returns the run and the resolved config (which
+    ``run.json`` stores, so re-segmenting runs with the same values); the record's
+    ``size_rules`` lists each resolved value. The blend-weight cache is written into ``state``
+    (the staged run's ``state/``) view by view, so it is never held in memory as a whole."""
     from dcseg.reconstruct.job import device_of
 
     where = device_of(device)
@@ -214,8 +218,13 @@ def _train(
     if not any(len(m) for m in agnostic.values()):
         raise InputError.single("class-agnostic masks", "no frame has any mask")
     reconstruction: dict[str, Any] = {"device": str(where)}
+    width, height = _frame_size(capture)
+    size = SceneSize(views=len(capture), pixels=width * height)
+    given, cfg = cfg, resolve(cfg, size)
     with clock.phase("reconstruct"):
         gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction, where)
+    size = replace(size, gaussians=len(gaussians))
+    cfg = resolve(cfg, size)
     with clock.phase("train"):
         trained = train_scene(gaussians, capture, agnostic, cfg, on_progress, cache_dir=state)
     picked = [capture.frames[i] for i in preview_indices(len(capture))]
@@ -224,8 +233,9 @@ def _train(
         "inputs": _describe(inputs),
         "capture": plan.summary(),
         "reconstruction": reconstruction,
+        "size_rules": describe(given, cfg, size),
     }
-    return SavedRun(trained, {}, Vocabulary(()), previews, record)
+    return SavedRun(trained, {}, Vocabulary(()), previews, record), cfg
 
 
 def resegment_job(

@@ -36,6 +36,7 @@ from dcseg.config import DEFAULT_SCALE, CaptureOptions, FrameBudget, PipelineCon
 from dcseg.errors import InputError, Problem
 from dcseg.reconstruct.config import PRESETS as RECONSTRUCT_PRESETS
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.sizes import SCALED
 
 PresetName = Literal["fast", "paper"]
 """Named parameter sets (:func:`dcseg.config.preset`)."""
@@ -275,8 +276,10 @@ def build_config(preset_name: str, options: JobOptions) -> tuple[PipelineConfig,
     """The pipeline and capture configs of a job; InputError names every bad field.
 
     The preset gives every value; ``options`` override single fields; ``segment.seed`` seeds
-    every stage. Cross-field rules of the stage configs (``knn_sample <= knn_k``, ...) are
-    checked here too, so the API refuses what the worker would.
+    every stage. A field given here is kept at any scene size: it joins ``rules.fixed``, so no
+    size rule (:mod:`dcseg.sizes`) moves it. Cross-field rules of the stage configs
+    (``knn_sample <= knn_k``, ...) are checked here too, so the API refuses what the worker
+    would.
     """
     if preset_name not in PRESET_NAMES:
         known = ", ".join(PRESET_NAMES)
@@ -295,11 +298,22 @@ def build_config(preset_name: str, options: JobOptions) -> tuple[PipelineConfig,
             scale=seg.scale,
             assign=dataclasses.replace(base.assign, mode=seg.matcher),
             budget=_budget(base.budget, options.budget),
+            rules=dataclasses.replace(base.rules, fixed=_explicit(options)),
         ).seeded(seg.seed)
         capture = CaptureOptions(**options.capture.model_dump())
     except ValueError as error:
         raise InputError([Problem("options", str(error))]) from None
     return cfg, capture
+
+
+def _explicit(options: JobOptions) -> tuple[str, ...]:
+    """The given fields that a size rule would otherwise set, as ``stage.field``."""
+    given = [
+        f"{stage}.{name}"
+        for stage in ("reconstruct", "affinity")
+        for name in getattr(options, stage).model_dump(exclude_unset=True)
+    ]
+    return tuple(name for name in SCALED if name in given)
 
 
 def _budget(base: FrameBudget, given: BudgetOptionsIn) -> FrameBudget:

@@ -86,6 +86,7 @@ class ReconstructStage:
             device=ctx.settings.device,
             on_progress=on_progress,
             report_name="metrics.json",
+            rules=pipeline.rules,
         )
         return StageOutcome("done", f"reconstruct: {report['gaussians']} Gaussians")
 

@@ -68,5 +68,9 @@ def run_reporting(job: Job, args: argparse.Namespace) -> int:
         sys.stderr.write(f"dcseg: {len(error.problems)} problem(s):\n")
         sys.stderr.writelines(f"  - {p}\n" for p in error.problems)
         return 1
+    if record.get("size_rules"):  # absent from runs made before the size rules
+        from dcseg.sizes import summary
+
+        log.info("%s", summary(record["size_rules"]))
     log.info("%s: %s", args.out, summary_line(record))
     return 0

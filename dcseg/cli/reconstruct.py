@@ -73,6 +73,8 @@ def _progress_bar(total: int) -> tuple[Any, Any]:
     bar = tqdm(total=total, desc="reconstruct", unit="it", file=sys.stderr, dynamic_ncols=True)
 
     def on_progress(iteration: int, total: int, loss: float) -> None:
+        if bar.total != total:  # the size rules set the steps once the capture is read
+            bar.total = total
         bar.update(iteration - bar.n)
         if iteration % 25 == 0 or iteration == total:
             bar.set_postfix(loss=f"{loss:.4f}")
@@ -83,6 +85,7 @@ def _progress_bar(total: int) -> tuple[Any, Any]:
 def run(args: argparse.Namespace) -> int:
     from dcseg.errors import InputError
     from dcseg.reconstruct.job import reconstruct_job
+    from dcseg.sizes import summary as rules_summary
 
     pipeline, options = _config(args)
     cfg = pipeline.reconstruct
@@ -97,11 +100,13 @@ def run(args: argparse.Namespace) -> int:
                 budget=pipeline.budget,
                 device=args.device,
                 on_progress=on_progress,
+                rules=pipeline.rules,
             )
     except InputError as error:
         for problem in error.problems:
             sys.stderr.write(f"dcseg reconstruct: {problem}\n")
         return 1
+    log.info("%s", rules_summary(report["size_rules"]))
     log.info(
         "wrote %s (%d Gaussians); held-out PSNR %s dB, depth MAE %s m",
         args.out / "scene.ply",

@@ -26,6 +26,7 @@ from dcseg.errors import InputError
 from dcseg.gaussians import Gaussians
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.stage import Reconstruction
+from dcseg.sizes import SceneSize, SizeRules, reconstruct_record
 from dcseg.types import Capture
 
 StepProgress = Callable[[int, int, float], None]
@@ -70,11 +71,15 @@ def reconstruct_job(
     device: str = "auto",
     on_progress: StepProgress | None = None,
     report_name: str = "reconstruction.json",
+    rules: SizeRules | None = None,
 ) -> dict[str, Any]:
     """Read a capture, reconstruct it and write ``out/scene.ply`` and ``out/<report_name>``.
 
     Only the frames ``budget`` selects are read, at its working resolution
-    (:mod:`dcseg.io.captures.plan`); the report's ``capture`` records that choice.
+    (:mod:`dcseg.io.captures.plan`); the report's ``capture`` records that choice. With
+    ``rules``, ``cfg`` holds the values at the reference size and the size rules
+    (:mod:`dcseg.sizes`) set them for the planned views and pixels; the report's
+    ``size_rules`` lists the values and ``config`` is what ran. None = ``cfg`` as given.
 
     Returns:
         The report, with read/write timings, the peak memory and the library versions.
@@ -86,8 +91,11 @@ def reconstruct_job(
     start = time.perf_counter()
     capture, plan = read_planned(capture_path, options, budget)
     read_s = time.perf_counter() - start
+    size = SceneSize(views=len(capture), pixels=plan.size[0] * plan.size[1])
+    cfg, rules_record = reconstruct_record(cfg, rules or SizeRules(enabled=False), size)
     gaussians, report = reconstruct_scene(capture, cfg, where, on_progress)
     report["capture"] = plan.summary()
+    report["size_rules"] = rules_record
     start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     write_gaussians_ply(out / "scene.ply", gaussians)

@@ -14,6 +14,7 @@ from dcseg.cli import main
 from dcseg.config import FrameBudget, PipelineConfig, preset
 from dcseg.io.images import read_image
 from dcseg.jobs import RunInputs, evaluate_job, run_job
+from dcseg.sizes import SCALED
 from worker.stages import ReconstructStage, TrainStage
 
 pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")
@@ -56,6 +57,20 @@ def test_run_records_the_plan_and_trains_at_the_working_size(run_dir: Path) -> N
     assert len(views["views"]) == 4
 
 
+def test_run_records_the_size_rules_and_runs_the_resolved_values(run_dir: Path) -> None:
+    record = json.loads((run_dir / "run.json").read_text())
+    rules = record["size_rules"]
+    gaussians = record["counts"]["gaussians"]
+    assert rules["size"] == {"views": 4, "pixels": 80 * 60, "gaussians": gaussians}
+    assert set(rules["values"]) == set(SCALED) and rules["explicit"] == []
+    area = rules["values"]["assign.min_area"]
+    assert area == {"preset": 1000, "value": round(1000 * 80 * 60 / (320 * 240))}
+    assert rules["values"]["affinity.iterations"] == {"preset": 60, "value": 60}  # < 40 views
+    config = PipelineConfig.from_dict(record["config"])  # what ran, what re-segmenting reuses
+    assert config.assign.min_area == area["value"]
+    assert sorted(config.rules.fixed) == sorted(SCALED)
+
+
 def test_per_view_outputs_are_at_the_capture_resolution(run_dir: Path) -> None:
     record = json.loads((run_dir / "run.json").read_text())
     names = record["capture"]["frames"]
@@ -77,6 +92,7 @@ def test_cli_flags_override_the_preset_budget(
     scene: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.INFO, logger="dcseg.io.captures")
+    caplog.set_level(logging.INFO, logger="dcseg.cli.reconstruct")
     out = tmp_path / "rec"
     args = ["reconstruct", str(scene), "--out", str(out), "--iterations", "2", "--holdout", "0"]
     assert main([*args, "--max-side", "native", "--keyframes", "2"]) == 0
@@ -84,6 +100,11 @@ def test_cli_flags_override_the_preset_budget(
     assert capture["size"] == [160, 120] and capture["kept"] == 2
     assert capture["budget"]["max_side"] is None
     assert "training at 160x120 (160x120 / 1, native); 2 of 5 frames" in caplog.text
+    report = json.loads((out / "reconstruction.json").read_text())
+    assert report["size_rules"]["explicit"] == ["reconstruct.iterations"]  # --iterations wins
+    assert report["config"]["iterations"] == 2
+    assert "reconstruct.iterations" not in report["size_rules"]["values"]
+    assert "size rules at 2 views of 19200 px: the presets' values" in caplog.text
     with pytest.raises(SystemExit, match=r"--keyframes \(options.budget.max_frames\)"):
         main([*args, "--keyframes", "none"])
 

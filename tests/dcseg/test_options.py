@@ -15,6 +15,8 @@ from dcseg.config import BUDGET_PRESETS, CaptureOptions, FrameBudget, PipelineCo
 from dcseg.errors import InputError
 from dcseg.options import (
     AFFINITY_BOUNDS,
+    MAX_KEYFRAMES,
+    MAX_SIDE,
     NOT_OVERRIDABLE,
     RECONSTRUCT_BOUNDS,
     RECONSTRUCT_CHOICES,
@@ -25,6 +27,7 @@ from dcseg.options import (
 )
 from dcseg.reconstruct.config import PRESETS as RECONSTRUCT_PRESETS
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.sizes import SCALED, SceneSize, resolve
 
 
 @pytest.mark.parametrize(
@@ -53,7 +56,22 @@ def test_presets_lie_inside_the_bounds(name):
         "affinity": {k: getattr(AFFINITY_PRESETS[name], k) for k in AFFINITY_BOUNDS},
     }
     built, _ = build_config(name, parse_options(overrides))
-    assert built == preset(name)
+    assert dataclasses.replace(built, rules=preset(name).rules) == preset(name)
+    assert set(built.rules.fixed) == {n for n in SCALED if n.split(".")[0] in overrides}
+
+
+@pytest.mark.parametrize("name", ["fast", "paper"])
+def test_size_rules_stay_inside_the_bounds(name):
+    """What the rules make of a preset is a value the API would accept, at any size."""
+    huge = SceneSize(views=MAX_KEYFRAMES, pixels=MAX_SIDE * MAX_SIDE, gaussians=10**8)
+    resolved = resolve(preset(name), huge)
+    for cfg, bounds in (
+        (resolved.reconstruct, RECONSTRUCT_BOUNDS),
+        (resolved.affinity, AFFINITY_BOUNDS),
+    ):
+        for field, (low, high) in bounds.items():
+            value = getattr(cfg, field)
+            assert value is None or low <= value <= high, (name, field, value)
 
 
 def test_defaults_are_the_preset():

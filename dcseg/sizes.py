@@ -56,7 +56,8 @@ class SceneSize:
     gaussians: int | None = None
 
 
-REFERENCE = SceneSize(views=40, pixels=320 * 240, gaussians=120_000)
+REFERENCE_GAUSSIANS = 120_000
+REFERENCE = SceneSize(views=40, pixels=320 * 240, gaussians=REFERENCE_GAUSSIANS)
 """The 40-view 320x240 synthetic benchmark scene (``dcseg synth`` defaults; the fast preset
 reconstructs it to its 120k-Gaussian cap), on which the presets were tuned."""
 
@@ -180,12 +181,8 @@ def min_cluster_size(cfg: ClusterConfig, gaussians: int) -> int:
     did. The sample is 10 000 up to 500k Gaussians (the 2 % rule's floor), so this only moves
     beyond; never below the config's value.
     """
-    now, then = sample_size(gaussians, cfg), sample_size(_reference_gaussians(), cfg)
+    now, then = sample_size(gaussians, cfg), sample_size(REFERENCE_GAUSSIANS, cfg)
     return max(cfg.min_cluster_size, round(cfg.min_cluster_size * now / max(then, 1)))
-
-
-def _reference_gaussians() -> int:
-    return REFERENCE.gaussians or 0
 
 
 def min_area(cfg: AssignConfig, pixels: int) -> int:

@@ -17,7 +17,9 @@ class AffinityConfig:
     """Feature channels D per Gaussian (= outputs of the scale gate)."""
 
     iterations: int = 10_000
-    """Optimisation steps; one random view with masks per step (without replacement per epoch)."""
+    """Optimisation steps; one random view with masks per step (without replacement per epoch).
+    At the reference size (40 views): runs grow it with their views
+    (:func:`dcseg.sizes.grown_steps`)."""
 
     rays: int = 1000
     """Pixels sampled per step among the pixels covered by at least one mask."""

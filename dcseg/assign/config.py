@@ -20,7 +20,9 @@ class AssignConfig:
             that view with at least ``min_area`` pixels (1 for a class that is present only in
             smaller pieces).
         min_iou: edges with IoU below this are invalid: never matched, never voted (paper 0.05).
-        min_area: smallest class-mask component (pixels) counted by ``replicas="components"``.
+        min_area: smallest class-mask component (pixels) counted by ``replicas="components"``,
+            at the reference's 320x240: runs scale it with their pixels
+            (:func:`dcseg.sizes.min_area`).
             The same-named 2D filter of cluster masks (paper: 1000 px at 1200x680) is applied
             before this stage, when cluster maps are made.
         min_share_ratio: after voting, a Gaussian of a labelled cluster leaves the cluster

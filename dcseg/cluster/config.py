@@ -54,7 +54,9 @@ class ClusterConfig:
         sample_fraction: fraction of the Gaussians HDBSCAN is fitted on (paper: 0.02).
         min_sample_size: the sample has at least ``min(N, min_sample_size)`` Gaussians.
         max_sample_size: and at most this many (HDBSCAN on CPU grows super-linearly).
-        min_cluster_size: HDBSCAN ``min_cluster_size`` (paper: 10; see above).
+        min_cluster_size: HDBSCAN ``min_cluster_size`` (paper: 10; see above), for the
+            reference's 10 000-point sample: runs scale it with their sample size
+            (:func:`dcseg.sizes.min_cluster_size`).
         min_samples: HDBSCAN ``min_samples`` in the contrib meaning (see above); None = the
             same as ``min_cluster_size`` (paper).
         cluster_selection_epsilon: HDBSCAN ``cluster_selection_epsilon`` on L2-normalised

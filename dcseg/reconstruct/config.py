@@ -14,7 +14,10 @@ class ReconstructConfig:
     """How Gaussians are initialised from depth and optimised against the training views."""
 
     iterations: int = 30_000
-    """Optimisation steps; one random training view per step."""
+    """Optimisation steps; one random training view per step. At the reference size (35
+    training views): runs grow it with their training views, and the step schedule
+    (``sh_degree_interval``, ``full_res_from``, ``densify_*``, ``opacity_reset_every``) with
+    it (:func:`dcseg.sizes.grown_steps`)."""
 
     sh_degree: int = 3
     """Largest spherical-harmonic degree of the colour (0-3)."""
@@ -58,7 +61,8 @@ class ReconstructConfig:
     """Upper clip of the automatic voxel size (metres)."""
 
     max_init_points: int = 200_000
-    """Cap on initial Gaussians; the voxel size grows until the cloud fits."""
+    """Cap on initial Gaussians; the voxel size grows until the cloud fits. At the reference
+    size: runs grow it with their training pixels (:func:`dcseg.sizes.gaussian_growth`)."""
 
     init_opacity: float = 0.3
     """Opacity of every initial Gaussian."""
@@ -118,7 +122,8 @@ class ReconstructConfig:
     """Reset opacities to at most 0.01 every this many steps during densification; 0 = never."""
 
     max_gaussians: int = 1_000_000
-    """Densification stops adding Gaussians beyond this count."""
+    """Densification stops adding Gaussians beyond this count. At the reference size: runs
+    grow it with their training pixels (:func:`dcseg.sizes.gaussian_growth`)."""
 
     def __post_init__(self) -> None:
         if self.iterations < 0:

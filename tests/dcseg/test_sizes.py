@@ -22,6 +22,13 @@ from dcseg.sizes import (
 )
 
 TEN_TIMES = SceneSize(views=400, pixels=10 * 320 * 240, gaussians=1_200_000)
+GROWING = SizeRules(reconstruct_max_iterations=7500, affinity_max_iterations=5000)
+"""Rules with room to grow (the fast preset's own caps are time-bounded)."""
+
+
+def _growing(fixed: tuple[str, ...] = ()) -> PipelineConfig:
+    """The fast preset's stage values under :data:`GROWING` rules."""
+    return dataclasses.replace(preset("fast"), rules=dataclasses.replace(GROWING, fixed=fixed))
 
 
 def _stages(cfg: PipelineConfig) -> PipelineConfig:
@@ -44,8 +51,8 @@ def test_at_the_reference_size_every_rule_gives_the_preset_value(name: str) -> N
     assert all(v["preset"] == v["value"] for v in values.values()) and set(values) == set(SCALED)
 
 
-def test_fast_at_ten_times_the_sizes() -> None:
-    cfg = resolve(preset("fast"), TEN_TIMES)
+def test_growing_rules_at_ten_times_the_sizes() -> None:
+    cfg = resolve(_growing(), TEN_TIMES)
     r = cfg.reconstruct
     assert r.iterations == 7500  # 1500 * 350 / 35 training views, capped at 7500
     assert (r.densify_from, r.densify_until, r.full_res_from) == (1500, 6000, 4500)  # x5
@@ -57,11 +64,18 @@ def test_fast_at_ten_times_the_sizes() -> None:
 
 
 def test_growth_in_proportion_below_the_caps() -> None:
-    cfg = resolve(preset("fast"), SceneSize(views=80, pixels=320 * 240, gaussians=600_000))
+    cfg = resolve(_growing(), SceneSize(views=80, pixels=320 * 240, gaussians=600_000))
     assert cfg.reconstruct.iterations == 3000  # 70 training views: twice the reference's
     assert cfg.reconstruct.densify_until == 2400 and cfg.reconstruct.max_gaussians == 240_000
     assert cfg.affinity.iterations == 2000
     assert cfg.cluster.min_cluster_size == 8  # sample 12 000: 7 * 1.2
+
+
+def test_fast_preset_is_bounded_in_time() -> None:
+    cfg = resolve(preset("fast"), TEN_TIMES)
+    assert cfg.reconstruct.iterations == 1500 and cfg.reconstruct.densify_until == 1200
+    assert (cfg.reconstruct.max_init_points, cfg.reconstruct.max_gaussians) == (90_000, 180_000)
+    assert cfg.affinity.iterations == 2000
 
 
 def test_smaller_scenes_keep_the_preset_steps_and_caps() -> None:
@@ -89,7 +103,7 @@ def test_explicit_values_win() -> None:
     cfg = resolve(built, TEN_TIMES)
     assert cfg.reconstruct.iterations == 1500 and cfg.reconstruct.densify_until == 1200
     assert cfg.reconstruct.max_gaussians == 100_000 and cfg.affinity.iterations == 800
-    assert cfg.reconstruct.max_init_points == 240_000  # not given: still follows its rule
+    assert cfg.reconstruct.max_init_points == 90_000  # not given: follows its rule (x1.5 cap)
     record = describe(built, cfg, TEN_TIMES)
     assert "affinity.iterations" in record["explicit"]
     assert "affinity.iterations" not in record["values"]
@@ -97,7 +111,7 @@ def test_explicit_values_win() -> None:
 
 def test_a_given_schedule_field_is_not_stretched() -> None:
     built, _ = build_config("fast", parse_options({"reconstruct": {"densify_until": 1000}}))
-    cfg = resolve(built, TEN_TIMES)
+    cfg = resolve(dataclasses.replace(built, rules=_growing(built.rules.fixed).rules), TEN_TIMES)
     assert cfg.reconstruct.iterations == 7500 and cfg.reconstruct.densify_until == 1000
 
 
@@ -120,7 +134,7 @@ def test_resolved_config_round_trips_through_run_json_form() -> None:
 
 
 def test_reconstruct_record_and_summary_line() -> None:
-    given = preset("fast")
+    given = _growing()
     cfg, record = reconstruct_record(given.reconstruct, given.rules, TEN_TIMES)
     assert cfg.iterations == 7500
     assert record["values"]["reconstruct.iterations"] == {"preset": 1500, "value": 7500}

@@ -66,11 +66,15 @@ class CacheConfig:
         memory_mb: the cache lives in the run's ``state/views/``; at most this many MB of it
             are kept in memory (least recently used views are read again from disk). Changes
             time and memory, never results: a capture whose cache fits is read once.
+        half_weights: store the weights as float16 (3 significant digits; contributions
+            below ``min_weight`` = 1e-3 are dropped anyway): the cache takes ~30 % less disk
+            and memory; off stores float32.
     """
 
     min_weight: float = 1e-3
     max_per_pixel: int = 32
     memory_mb: int = 2048
+    half_weights: bool = True
 
 
 @dataclass(frozen=True)

@@ -155,6 +155,7 @@ def run_job(
     tmp = staging_dir(out)
     try:
         trained, cfg = _train(inputs, capture, plan, cfg, clock, on_progress, device, tmp / "state")
+        del capture  # the views' depth and weights are in state/ now; previews keep a few frames
         saved = replace(trained, semantic=dict(semantic), vocabulary=vocabulary)
         return _finish(saved, cfg, out, clock, gt, on_progress, train_state=True, tmp=tmp)
     except BaseException:

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, overload
+from typing import Any, TypeVar, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +33,8 @@ from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
 from dcseg.segment import class_evidence, cluster_map, label_map
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
+
+T = TypeVar("T")
 
 Progress = Callable[[str, float, str], None]
 """``on_progress(stage, fraction, message)``."""
@@ -130,7 +132,9 @@ def build_views(
             views.append(ViewState.in_memory(frame.name, K, c2w, blend, frame.depth))
         else:
             path = folder / "views" / f"{i}.npz"
-            views.append(write_view(path, frame.name, K, c2w, blend, frame.depth, memory))
+            views.append(
+                write_view(path, frame.name, K, c2w, blend, frame.depth, memory, cfg.half_weights)
+            )
         on_progress("cache", (i + 1) / len(capture), f"view {frame.name}: {blend.nnz} weights")
         del blend
     return tuple(views)
@@ -156,7 +160,10 @@ def train_scene(
     """
     frozen = gaussians.detach()
     views = build_views(frozen, capture, cfg.cache, on_progress, cache_dir)
-    inputs = [AffinityView(v.name, _loader(v), agnostic.get(v.name), v.depth, v.K) for v in views]
+    depth = {f.name: f.depth for f in capture.frames}  # held by the capture anyway
+    inputs = [
+        AffinityView(v.name, _loader(v), agnostic.get(v.name), depth[v.name], v.K) for v in views
+    ]
 
     def report(step: int, total: int, loss: float) -> None:
         on_progress("affinity", step / total, f"step {step}/{total} loss {loss:.4f}")
@@ -170,23 +177,34 @@ def _loader(view: ViewState) -> BlendWeights | Callable[[], BlendWeights]:
     return view.blend if view.source is None else lambda: view.blend
 
 
-class _Blends(Sequence[BlendWeights]):
-    """The views' blending weights, read one view at a time as they are iterated."""
+class _PerView(Sequence[T]):
+    """One value per view, read as the views are iterated (one view's value held at a time)."""
 
-    def __init__(self, views: Sequence[ViewState]) -> None:
+    def __init__(self, views: Sequence[ViewState], read: Callable[[ViewState], T]) -> None:
         self._views = views
+        self._read = read
 
     def __len__(self) -> int:
         return len(self._views)
 
     @overload
-    def __getitem__(self, index: int) -> BlendWeights: ...
+    def __getitem__(self, index: int) -> T: ...
     @overload
-    def __getitem__(self, index: slice) -> Sequence[BlendWeights]: ...
-    def __getitem__(self, index: int | slice) -> BlendWeights | Sequence[BlendWeights]:
+    def __getitem__(self, index: slice) -> Sequence[T]: ...
+    def __getitem__(self, index: int | slice) -> T | Sequence[T]:
         if isinstance(index, slice):
-            return _Blends(self._views[index])
-        return self._views[index].blend
+            return _PerView(self._views[index], self._read)
+        return self._read(self._views[index])
+
+
+def _blends(views: Sequence[ViewState]) -> Sequence[BlendWeights]:
+    """The views' blending weights, read one view at a time as they are iterated."""
+    return _PerView(views, lambda v: v.blend)
+
+
+def _depths(views: Sequence[ViewState]) -> Sequence[NDArray[np.float32]]:
+    """The views' depth, read one view at a time as they are iterated."""
+    return _PerView(views, lambda v: v.depth)
 
 
 def segment_scene(
@@ -242,7 +260,7 @@ def _scene_evidence(
     """``[N, C]`` class evidence of every Gaussian over the views that have class maps."""
     views = [v for v in trained.views if v.name in semantic]
     maps = [semantic[v.name].classes for v in views]
-    return class_evidence(_Blends(views), maps, len(trained.gaussians.means), n_classes)
+    return class_evidence(_blends(views), maps, len(trained.gaussians.means), n_classes)
 
 
 def _objects(
@@ -376,7 +394,7 @@ def _project(
     return vote_projection(
         gt.points,
         images,
-        [v.depth for v in views],
+        _depths(views),
         [v.K for v in views],
         [v.c2w for v in views],
         n_classes,

@@ -20,8 +20,9 @@ from numpy.typing import NDArray
 
 from dcseg.errors import InputError
 
-STATE_VERSION = 1
-"""The ``state/views.json`` version this reader understands (that of :mod:`dcseg.io.run_state`)."""
+READABLE_VERSIONS = (1, 2)
+"""The ``state/views.json`` versions this reader understands (those of :mod:`dcseg.io.run_state`;
+both keep depth as float16 in the views' files)."""
 
 
 @dataclass(frozen=True)
@@ -53,8 +54,8 @@ def run_views(run: Path) -> list[DepthView] | None:
         body = json.loads(meta_path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as error:
         raise InputError.single(str(meta_path), f"cannot read the run's views: {error}") from None
-    if body.get("version") != STATE_VERSION:
-        reason = f"unsupported state version {body.get('version')!r} (expected {STATE_VERSION})"
+    if body.get("version") not in READABLE_VERSIONS:
+        reason = f"unsupported state version {body.get('version')!r} (expected 1 or 2)"
         raise InputError.single(str(meta_path), reason)
     folder = run / "state" / "views"
     views = [_state_view(folder / f"{i}.npz", meta) for i, meta in enumerate(body["views"])]

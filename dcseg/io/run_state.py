@@ -6,13 +6,15 @@ Layout under ``RUN/state/``::
     affinity.npz         features [N,D], gate_weight [D,1], gate_bias [D], scale_quantiles [Q],
                          losses [T]
     views.json           per view: name, width, height, K (3x3), c2w (4x4)
-    views/<i>.npz        per view: blend weights (offsets int64, ids int32, weights float32)
-                         and depth (float16 m); written while the cache is built and read
-                         back one view at a time (the whole cache is never in memory)
+    views/<i>.npz        per view: blend weights (counts per pixel uint8, ids int32, weights
+                         float16 or float32) and depth (float16 m); written while the cache
+                         is built and read back one view at a time (the whole cache is never
+                         in memory; depth is read only when a stage asks for it)
     semantic/            the class-aware maps the run used (for re-clustering)
     vocabulary.json      their vocabulary
 
 Arrays are written with :func:`numpy.savez` (uncompressed: it is a cache read back whole).
+Version 1 (``offsets`` int64 and float32 weights per view) is still read.
 """
 
 from __future__ import annotations
@@ -34,7 +36,9 @@ from dcseg.affinity.data import AffinityResult
 from dcseg.blend import BlendWeights
 from dcseg.errors import InputError
 
-STATE_VERSION = 1
+STATE_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+"""Versions :func:`load_views` reads (1 stored ``offsets`` int64 and float32 weights)."""
 
 
 class BlendMemory:
@@ -78,17 +82,18 @@ class BlendMemory:
 class ViewState:
     """One view as the segmentation stages need it after training.
 
-    The blending weights live either in memory or in a ``views/<i>.npz`` file of the cache
-    (:func:`write_view`); :attr:`blend` then reads them on every access and nothing keeps them,
-    so a stage that visits the views one by one holds one view's weights at a time.
+    The blending weights and the depth live either in memory or in a ``views/<i>.npz`` file of
+    the cache (:func:`write_view`); :attr:`blend` and :attr:`depth` then read them on every
+    access and nothing keeps them, so a stage that visits the views one by one holds one
+    view's weights at a time, and no stage holds every view's depth.
 
     Attributes:
         name: the frame stem.
         K: ``[3, 3]`` intrinsics.
         c2w: ``[4, 4]`` camera-to-world pose.
-        depth: ``[H, W]`` float32 capture depth (metres, 0 = invalid), for evaluation.
         width, height: the view's resolution (of the blending weights and the depth).
         cached: the weights in memory, or None when they are read from ``source``.
+        held_depth: the depth in memory, or None when it is read from ``source``.
         source: the view's cache file, or None for in-memory weights.
         memory: where weights read from ``source`` are kept within a budget (None = read on
             every access).
@@ -97,16 +102,18 @@ class ViewState:
     name: str
     K: NDArray[np.float64]
     c2w: NDArray[np.float64]
-    depth: NDArray[np.float32]
     width: int
     height: int
     cached: BlendWeights | None = None
+    held_depth: NDArray[np.float32] | None = None
     source: Path | None = None
     memory: BlendMemory | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if (self.cached is None) == (self.source is None):
             raise ValueError("a view needs exactly one of cached weights or a source file")
+        if self.source is None and self.held_depth is None:
+            raise ValueError("a view with weights in memory needs its depth in memory")
 
     @classmethod
     def in_memory(
@@ -117,7 +124,7 @@ class ViewState:
         blend: BlendWeights,
         depth: NDArray[np.float32],
     ) -> ViewState:
-        return cls(name, K, c2w, depth, blend.width, blend.height, cached=blend)
+        return cls(name, K, c2w, blend.width, blend.height, cached=blend, held_depth=depth)
 
     @property
     def blend(self) -> BlendWeights:
@@ -128,6 +135,16 @@ class ViewState:
         if self.memory is not None:
             return self.memory.get(self.source, self.width, self.height)
         return _read_blend(self.source, self.width, self.height)
+
+    @property
+    def depth(self) -> NDArray[np.float32]:
+        """``[H, W]`` float32 capture depth (metres, 0 = invalid), for affinity scales and
+        evaluation (read from the cache file when not in memory)."""
+        if self.held_depth is not None:
+            return self.held_depth
+        assert self.source is not None
+        depth: NDArray[np.float32] = _load_npz(self.source, ("depth",))["depth"].astype(np.float32)
+        return depth
 
     def cache_bytes(self) -> int:
         """Bytes the view's weights take (on disk, or in memory)."""
@@ -140,20 +157,41 @@ class ViewState:
 def write_view(
     path: Path, name: str, K: NDArray[np.float64], c2w: NDArray[np.float64],
     blend: BlendWeights, depth: NDArray[np.float32], memory: BlendMemory | None = None,
+    half_weights: bool = True,
 ) -> ViewState:  # fmt: skip
-    """Write one view's weights (offsets int64, ids int32, weights float32) and depth (float16)
-    to ``path``; the returned view reads them back on use (kept in ``memory`` if given)."""
+    """Write one view's weights (counts per pixel, ids int32, weights float16 with
+    ``half_weights`` else float32) and depth (float16) to ``path``; the returned view reads
+    them back on use (kept in ``memory`` if given)."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    offsets = blend.offsets.cpu().numpy()
+    counts = np.diff(offsets)
+    weights = blend.weights.cpu().numpy()
     np.savez(
         path,
-        offsets=blend.offsets.cpu().numpy(),
+        counts=counts.astype(_count_dtype(counts), copy=False),
         ids=blend.ids.cpu().numpy().astype(np.int32, copy=False),
-        weights=blend.weights.cpu().numpy(),
+        weights=weights.astype(np.float16 if half_weights else np.float32, copy=False),
         depth=depth.astype(np.float16),
     )
     if memory is not None:
-        memory.put(path, blend)
-    return ViewState(name, K, c2w, depth, blend.width, blend.height, source=path, memory=memory)
+        memory.put(path, _rounded(blend) if half_weights else blend)
+    return ViewState(name, K, c2w, blend.width, blend.height, source=path, memory=memory)
+
+
+def _rounded(blend: BlendWeights) -> BlendWeights:
+    """``blend`` with its weights rounded as float16 storage rounds them (so a view kept in
+    memory gives the same results as one read back)."""
+    weights = blend.weights.to(torch.float16).to(torch.float32)
+    return BlendWeights(blend.height, blend.width, blend.offsets, blend.ids, weights)
+
+
+def _count_dtype(counts: NDArray[np.int64]) -> type[np.unsignedinteger[Any]]:
+    """The smallest unsigned type that holds every per-pixel count."""
+    top = int(counts.max()) if counts.size else 0
+    for dtype in (np.uint8, np.uint16, np.uint32):
+        if top <= np.iinfo(dtype).max:
+            return dtype
+    return np.uint64
 
 
 def save_affinity(path: Path, result: AffinityResult) -> None:
@@ -188,7 +226,7 @@ def save_views(folder: Path, views: Sequence[ViewState]) -> None:
     for i, view in enumerate(views):
         target = folder / "views" / f"{i}.npz"
         if view.source is None:
-            write_view(target, view.name, view.K, view.c2w, view.blend, view.depth)
+            write_view(target, view.name, view.K, view.c2w, view.blend, view.depth, None, False)
         elif view.source.resolve() != target.resolve():
             _link_or_copy(view.source, target)
         meta.append(
@@ -219,7 +257,7 @@ def load_views(folder: Path, memory: BlendMemory | None = None) -> list[ViewStat
         body = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as error:
         raise InputError.single(str(path), f"cannot read the run's views: {error}") from None
-    if body.get("version") != STATE_VERSION:
+    if body.get("version") not in READABLE_VERSIONS:
         raise InputError.single(str(path), f"unsupported state version {body.get('version')}")
     return [_load_view(folder, i, meta, memory) for i, meta in enumerate(body["views"])]
 
@@ -228,12 +266,12 @@ def _load_view(
     folder: Path, index: int, meta: dict[str, Any], memory: BlendMemory | None
 ) -> ViewState:
     path = folder / "views" / f"{index}.npz"
-    depth = _load_npz(path, ("depth",))["depth"].astype(np.float32)
+    if not path.is_file():
+        raise InputError.single(str(path), "the view's cached weights are missing")
     return ViewState(
         name=str(meta["name"]),
         K=np.asarray(meta["K"], dtype=np.float64),
         c2w=np.asarray(meta["c2w"], dtype=np.float64),
-        depth=depth,
         width=int(meta["width"]),
         height=int(meta["height"]),
         source=path,
@@ -242,23 +280,37 @@ def _load_view(
 
 
 def _read_blend(path: Path, width: int, height: int) -> BlendWeights:
-    data = _load_npz(path, ("offsets", "ids", "weights"))
+    """A view's weights from its file: ``counts`` (version 2) or ``offsets`` (version 1)."""
+    data = _load_npz(path, ("ids", "weights"), either=("counts", "offsets"))
+    if "counts" in data:
+        offsets = np.zeros(data["counts"].shape[0] + 1, dtype=np.int64)
+        np.cumsum(data["counts"], out=offsets[1:])
+    else:
+        offsets = data["offsets"].astype(np.int64, copy=False)
+    if offsets.shape[0] != width * height + 1 or offsets[-1] != data["ids"].shape[0]:
+        raise InputError.single(str(path), f"the weights do not fit a {width}x{height} view")
     return BlendWeights(
         height=height,
         width=width,
-        offsets=torch.from_numpy(data["offsets"]),
+        offsets=torch.from_numpy(offsets),
         ids=torch.from_numpy(data["ids"]),
-        weights=torch.from_numpy(data["weights"]),
+        weights=torch.from_numpy(data["weights"].astype(np.float32, copy=False)),
     )
 
 
-def _load_npz(path: Path, keys: Sequence[str]) -> dict[str, NDArray[Any]]:
+def _load_npz(
+    path: Path, keys: Sequence[str], either: Sequence[str] = ()
+) -> dict[str, NDArray[Any]]:
+    """The arrays ``keys`` (and the first of ``either`` present) of ``path``."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            arrays = {k: np.asarray(data[k]) for k in keys if k in data.files}
+            wanted = [*keys, *[k for k in either if k in data.files][:1]]
+            arrays = {k: np.asarray(data[k]) for k in wanted if k in data.files}
     except (OSError, ValueError) as error:
         raise InputError.single(str(path), f"cannot read saved state: {error}") from None
     missing = [k for k in keys if k not in arrays]
+    if either and not any(k in arrays for k in either):
+        missing.append(" or ".join(either))
     if missing:
         raise InputError.single(str(path), f"missing arrays: {', '.join(missing)}")
     return arrays

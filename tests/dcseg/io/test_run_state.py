@@ -1,0 +1,137 @@
+"""The per-view blend-weight cache on disk: compact dtypes, lazy depth, version-1 files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from dcseg.blend import BlendWeights
+from dcseg.errors import InputError
+from dcseg.io.run_state import BlendMemory, load_views, save_views, write_view
+
+K = np.eye(3)
+POSE = np.eye(4)
+
+
+def blend_of(width: int = 5, height: int = 4, seed: int = 0) -> BlendWeights:
+    """A view's weights with 0-6 contributions per pixel."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(0, 7, size=width * height)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    nnz = int(offsets[-1])
+    return BlendWeights(
+        height=height,
+        width=width,
+        offsets=torch.from_numpy(offsets),
+        ids=torch.from_numpy(rng.integers(0, 1000, size=nnz).astype(np.int64)),
+        weights=torch.from_numpy(rng.uniform(1e-3, 1.0, size=nnz).astype(np.float32)),
+    )
+
+
+def depth_of(width: int = 5, height: int = 4) -> np.ndarray:
+    return np.linspace(0.5, 4.0, width * height, dtype=np.float32).reshape(height, width)
+
+
+def test_view_file_stores_counts_and_half_weights(tmp_path: Path) -> None:
+    """Per pixel one byte of count instead of eight of offset, weights as float16: the file
+    reads back to the same CSR rows and weights within float16 rounding."""
+    blend = blend_of()
+    view = write_view(tmp_path / "0.npz", "f0", K, POSE, blend, depth_of())
+    with np.load(tmp_path / "0.npz") as data:
+        assert data["counts"].dtype == np.uint8
+        assert data["weights"].dtype == np.float16
+        assert "offsets" not in data.files
+    back = view.blend
+    assert torch.equal(back.offsets, blend.offsets)
+    assert torch.equal(back.ids.long(), blend.ids)
+    assert back.weights.dtype == torch.float32
+    torch.testing.assert_close(back.weights, blend.weights, rtol=1e-3, atol=0)
+    assert not torch.equal(back.weights, blend.weights)  # rounded, so the check above bites
+
+
+def test_float32_weights_kept_when_asked(tmp_path: Path) -> None:
+    blend = blend_of()
+    view = write_view(tmp_path / "0.npz", "f0", K, POSE, blend, depth_of(), half_weights=False)
+    assert torch.equal(view.blend.weights, blend.weights)
+
+
+def test_view_held_in_memory_equals_the_one_read_back(tmp_path: Path) -> None:
+    """A capture whose cache fits the memory budget must give the results of one read back:
+    the held copy carries the float16-rounded weights too."""
+    blend = blend_of()
+    memory = BlendMemory(2**20)
+    held = write_view(tmp_path / "0.npz", "f0", K, POSE, blend, depth_of(), memory)
+    unheld = write_view(tmp_path / "1.npz", "f0", K, POSE, blend, depth_of())
+    assert memory.nbytes > 0
+    assert torch.equal(held.blend.weights, unheld.blend.weights)
+
+
+def test_depth_is_read_on_use_not_held(tmp_path: Path) -> None:
+    view = write_view(tmp_path / "0.npz", "f0", K, POSE, blend_of(), depth_of())
+    assert view.held_depth is None
+    assert view.depth.dtype == np.float32
+    np.testing.assert_array_equal(view.depth, depth_of().astype(np.float16).astype(np.float32))
+
+
+def test_many_contributions_per_pixel_widen_the_count(tmp_path: Path) -> None:
+    offsets = torch.tensor([0, 300, 300], dtype=torch.int64)
+    blend = BlendWeights(1, 2, offsets, torch.arange(300), torch.full((300,), 0.5))
+    view = write_view(tmp_path / "0.npz", "f0", K, POSE, blend, np.ones((1, 2), np.float32))
+    with np.load(tmp_path / "0.npz") as data:
+        assert data["counts"].dtype == np.uint16
+    assert torch.equal(view.blend.offsets, offsets)
+
+
+def save_version_1(folder: Path, blend: BlendWeights, depth: np.ndarray) -> None:
+    """A run's state as version 1 wrote it: int64 offsets and float32 weights."""
+    (folder / "views").mkdir(parents=True)
+    np.savez(
+        folder / "views" / "0.npz",
+        offsets=blend.offsets.numpy(),
+        ids=blend.ids.numpy().astype(np.int32),
+        weights=blend.weights.numpy(),
+        depth=depth.astype(np.float16),
+    )
+    meta = [{"name": "f0", "width": 5, "height": 4, "K": K.tolist(), "c2w": POSE.tolist()}]
+    (folder / "views.json").write_text(json.dumps({"version": 1, "views": meta}))
+
+
+def test_version_1_state_still_reads(tmp_path: Path) -> None:
+    blend = blend_of()
+    save_version_1(tmp_path, blend, depth_of())
+    (view,) = load_views(tmp_path)
+    assert torch.equal(view.blend.offsets, blend.offsets)
+    assert torch.equal(view.blend.weights, blend.weights)
+    assert view.depth.shape == (4, 5)
+
+
+def test_saved_views_round_trip_as_version_2(tmp_path: Path) -> None:
+    blend = blend_of()
+    view = write_view(tmp_path / "cache" / "0.npz", "f0", K, POSE, blend, depth_of())
+    save_views(tmp_path / "state", [view])
+    body = json.loads((tmp_path / "state" / "views.json").read_text())
+    assert body["version"] == 2
+    (back,) = load_views(tmp_path / "state")
+    assert torch.equal(back.blend.weights, view.blend.weights)
+
+
+def test_a_truncated_view_file_is_named(tmp_path: Path) -> None:
+    blend = blend_of()
+    save_version_1(tmp_path, blend, depth_of())
+    path = tmp_path / "views" / "0.npz"
+    np.savez(path, offsets=blend.offsets.numpy()[:-3], ids=blend.ids.numpy(),
+             weights=blend.weights.numpy(), depth=depth_of())  # fmt: skip
+    (view,) = load_views(tmp_path)
+    with pytest.raises(InputError, match=r"0\.npz.*do not fit a 5x4 view"):
+        _ = view.blend
+
+
+def test_a_missing_view_file_is_named(tmp_path: Path) -> None:
+    save_version_1(tmp_path, blend_of(), depth_of())
+    (tmp_path / "views" / "0.npz").unlink()
+    with pytest.raises(InputError, match=r"0\.npz.*missing"):
+        load_views(tmp_path)

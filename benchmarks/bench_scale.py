@@ -5,6 +5,8 @@ Usage::
     python benchmarks/bench_scale.py --frames 20 60 --sizes 160x120 --work /tmp/scale
     python benchmarks/bench_scale.py --frames 40 200 --sizes 320x240 640x480 \\
         --out benchmarks/results/scale.json
+    python benchmarks/superpixel_bundle.py ../shared/data/replica_room0_small /tmp/replica
+    python benchmarks/bench_scale.py --bundle /tmp/replica --out replica.json
 
 For every frames x size pair: ``dcseg synth`` writes a scene into ``--work`` (kept, so a
 second call reuses it), then a child process runs :func:`dcseg.jobs.run_job` on it with the
@@ -15,7 +17,8 @@ at most 200 keyframes, so a study of growth in frames passes ``--keyframes all``
 has the child's wall and CPU seconds, its peak RSS, the peak by the end of each phase
 (``run.json``: read, reconstruct, train, segment, evaluate, write), the per-phase seconds,
 the cache's size on disk and ``state/`` per frame. Rows are written to ``--out`` as they
-finish.
+finish. ``--bundle PATH`` (repeatable) measures existing bundles instead of synthetic scenes,
+e.g. a real capture with stand-in masks from ``benchmarks/superpixel_bundle.py``.
 """
 
 from __future__ import annotations
@@ -78,6 +81,8 @@ def measure(scene: Path, run: Path, args: argparse.Namespace) -> dict[str, Any]:
     state = sum(p.stat().st_size for p in (run / "state").rglob("*") if p.is_file())
     frames = record["counts"]["views"]
     return {
+        "views": frames,
+        "train_size": record.get("capture", {}).get("size"),
         "wall_seconds": round(wall, 1),
         "cpu_seconds": round(
             after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, 1
@@ -102,6 +107,7 @@ def main() -> int:
     parser.add_argument("--affinity-iterations", type=int)
     parser.add_argument("--max-side", help="frame budget: N or native (default: the preset's)")
     parser.add_argument("--keyframes", help="frame budget: N or all (default: the preset's)")
+    parser.add_argument("--bundle", type=Path, action="append", default=[])
     parser.add_argument("--work", type=Path, default=Path("/tmp/dcseg-scale"))
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/scale.json"))
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -111,6 +117,13 @@ def main() -> int:
     if args.child:
         return child(args)
     rows: list[dict[str, Any]] = []
+    for bundle in args.bundle:
+        row = {"bundle": str(bundle), **measure(bundle, args.work / f"run-{bundle.name}", args)}
+        rows.append(row)
+        print(json.dumps(row))
+        write(args, rows)
+    if args.bundle:
+        return 0
     for width, height in args.sizes:
         for frames in args.frames:
             scene = args.work / f"scene-{frames}-{width}x{height}"

@@ -95,11 +95,12 @@ class Segmentation:
     def n_instances(self) -> int:
         return self.instances.n_instances
 
-    def instance_maps(self) -> dict[str, NDArray[np.int64]]:
-        """Per view name, ``[H, W]`` object instance per pixel (-1 = none): the cluster maps
-        through each cluster's object (:attr:`Instances.of_cluster`)."""
+    def instance_map(self, name: str) -> NDArray[np.int64]:
+        """View ``name``'s ``[H, W]`` object instance per pixel (-1 = none): its cluster map
+        through each cluster's object (:attr:`Instances.of_cluster`); built on request, so
+        writers hold one view's at a time."""
         table = np.concatenate([[-1], self.instances.of_cluster]).astype(np.int64)
-        return {name: table[ids + 1] for name, ids in self.cluster_maps.items()}
+        return table[self.cluster_maps[name] + 1]
 
     def labels(self) -> Labels:
         return Labels(self.semantic_ids, self.label_maps)

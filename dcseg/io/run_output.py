@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -118,20 +118,17 @@ def write_outputs(
         "cluster_id": _one_based(segmentation.clustering.labels),
     }
     write_gaussians_ply(out / "scene_labelled.ply", g, extra=extra)
-    instance_maps = segmentation.instance_maps()
-    visible = _views_seen(instance_maps.values(), objects.n_instances)
+    visible = _write_view_maps(out, segmentation, size)
     means = g.means.detach().cpu().numpy()
     records = instance_records(
         means, objects.ids, objects.classes, objects.scores, visible, vocabulary
     )
     write_instances_json(out / "instances.json", records, out / "scene_labelled.ply")
     write_labels_json(out / "labels.json", vocabulary)
-    for name, ids in instance_maps.items():
-        classes = segmentation.label_maps[name]
-        if size is not None:
-            ids, classes = resize_nearest(ids, size), resize_nearest(classes, size)
-        write_view_maps(out, name, ids, classes)
-    sheet = [(rgb, instance_maps[name], segmentation.label_maps[name]) for name, rgb in previews]
+    sheet = [
+        (rgb, segmentation.instance_map(name), segmentation.label_maps[name])
+        for name, rgb in previews
+    ]
     if sheet:
         write_preview(out / "preview.png", sheet, segmentation.n_instances, vocabulary)
 
@@ -141,12 +138,20 @@ def _one_based(labels: NDArray[np.int64]) -> NDArray[np.int64]:
     return np.where(labels >= 0, labels + 1, -1)
 
 
-def _views_seen(maps: Iterable[NDArray[np.int64]], n: int) -> NDArray[np.int64]:
-    """``[n]`` number of maps in which each id covers at least one pixel."""
+def _write_view_maps(
+    out: Path, segmentation: Segmentation, size: tuple[int, int] | None
+) -> NDArray[np.int64]:
+    """Write every view's instance and class maps (at ``size`` if given), one view at a time;
+    returns ``[n]`` the number of views in which each object covers at least one pixel."""
+    n = segmentation.n_instances
     seen = np.zeros(n, dtype=np.int64)
-    for ids in maps:
+    for name in segmentation.cluster_maps:
+        ids, classes = segmentation.instance_map(name), segmentation.label_maps[name]
         present = np.unique(ids[ids >= 0])
         seen[present[present < n]] += 1
+        if size is not None:
+            ids, classes = resize_nearest(ids, size), resize_nearest(classes, size)
+        write_view_maps(out, name, ids, classes)
     return seen
 
 

@@ -46,7 +46,7 @@ from numpy.typing import NDArray  # noqa: E402
 from plyfile import PlyData  # noqa: E402
 
 from dcseg.config import PipelineConfig, preset  # noqa: E402
-from dcseg.evaluate import EvaluateConfig, evaluate_scenes, transfer_nearest, vote_projection  # noqa: E402
+from dcseg.evaluate import EvaluateConfig, evaluate_scenes, transfer_opaque, vote_projection  # noqa: E402
 from dcseg.evaluate.instances import instance_metrics  # noqa: E402
 from dcseg.io.ground_truth import read_ground_truth  # noqa: E402
 from dcseg.io.run_output import SavedRun, load_labels, load_run, write_outputs  # noqa: E402
@@ -60,10 +60,9 @@ from dcseg.types import GroundTruth  # noqa: E402
 TUNING = (0, 1, 2)
 HELDOUT = (3, 4)
 NOISES = ("clean", "default", "heavy", "realistic")
-MIN_OPACITY = 0.05
-"""3D protocol: only Gaussians above this opacity carry labels to ground-truth points."""
-MAX_DISTANCE = 0.05
-"""3D protocol: a ground-truth point farther than this (metres) from such a Gaussian gets none."""
+PROTOCOL = EvaluateConfig()
+"""3D protocol (evaluation.md): the nearest Gaussian above ``min_opacity`` (0.05) within
+``max_distance`` (5 cm)."""
 
 
 def run_dir(work: Path, noise: str, layout: int) -> Path:
@@ -115,16 +114,16 @@ class Scorer:
 
     def __init__(self, saved: SavedRun, gt: GroundTruth, depth_tol: float) -> None:
         g = saved.trained.gaussians
-        self.opaque = g.opacities().detach().cpu().numpy() > MIN_OPACITY
-        self.means = g.means.detach().cpu().numpy()[self.opaque]
+        self.opacities = g.opacities().detach().cpu().numpy()
+        self.means = g.means.detach().cpu().numpy()
         self.views = saved.trained.views
         self.gt, self.names = gt, saved.vocabulary.names
         self.depth_tol = depth_tol
 
     def nearest(self, per_gaussian: NDArray[Any]) -> NDArray[np.int64]:
         """3D protocol: each point takes the value of the nearest opaque Gaussian within 5 cm."""
-        values = np.asarray(per_gaussian)[self.opaque]
-        return transfer_nearest(self.means, values, self.gt.points, MAX_DISTANCE)
+        values = np.asarray(per_gaussian)
+        return transfer_opaque(self.means, self.opacities, values, self.gt.points, PROTOCOL)
 
     def projection(
         self, images: Sequence[NDArray[Any]], views: Sequence[ViewState]
@@ -398,7 +397,10 @@ def score(args: argparse.Namespace) -> None:
         "not_trained": missing,
         "scored": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "protocols": {
-            "nearest": f"nearest Gaussian with opacity > {MIN_OPACITY} within {MAX_DISTANCE} m",
+            "nearest": (
+                f"nearest Gaussian with opacity > {PROTOCOL.min_opacity} "
+                f"within {PROTOCOL.max_distance} m"
+            ),
             "projection": "majority vote of label maps, depth test (EvaluateConfig.depth_tol)",
         },
     }

@@ -25,7 +25,7 @@ from dcseg.cluster.features import Clustering
 from dcseg.cluster.outliers import adaptive_radius, compact_labels
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import CacheConfig, PipelineConfig
-from dcseg.evaluate.points import transfer_nearest, vote_projection
+from dcseg.evaluate.points import transfer_opaque, vote_projection
 from dcseg.evaluate.stage import evaluate_scenes
 from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
@@ -358,7 +358,8 @@ def evaluate_segmentation(
     Returns:
         ``{"dcseg_projection": m, "dcseg_nearest": m, "naive_fusion": m, "summary": {...}}``
         where each ``m`` is :func:`~dcseg.evaluate.stage.evaluate_scenes` output. Projection
-        is the paper's protocol (label images, depth test); nearest transfers Gaussian labels;
+        is the paper's protocol (label images, depth test); nearest transfers the labels of
+        Gaussians above ``cfg.evaluate.min_opacity`` within ``cfg.evaluate.max_distance``;
         naive fusion votes the class-aware 2D maps directly, with no 3D reasoning.
     """
     views = trained.views
@@ -367,11 +368,13 @@ def evaluate_segmentation(
     projection = _project(gt, views, [labels.label_maps[v.name] for v in views], n, tol)
     seen = [v for v in views if v.name in semantic]
     naive = _project(gt, seen, [semantic[v.name].classes for v in seen], n, tol)
-    nearest = transfer_nearest(
-        trained.gaussians.means.detach().cpu().numpy(),
+    g = trained.gaussians
+    nearest = transfer_opaque(
+        g.means.detach().cpu().numpy(),
+        g.opacities().detach().cpu().numpy(),
         labels.semantic_ids,
         gt.points,
-        cfg.evaluate.max_distance,
+        cfg.evaluate,
     )
     results = {
         name: evaluate_scenes([gt.labels], [pred], vocabulary.names, cfg.evaluate)

@@ -7,7 +7,7 @@ protocol; :data:`naive_fusion` is the same function fed with class-aware 2D maps
 
 from dcseg.evaluate.config import EvaluateConfig
 from dcseg.evaluate.metrics import class_scores, confusion, metrics_from_confusion
-from dcseg.evaluate.points import naive_fusion, transfer_nearest, vote_projection
+from dcseg.evaluate.points import naive_fusion, transfer_nearest, transfer_opaque, vote_projection
 from dcseg.evaluate.replica import (
     REPLICA_CLASS_NAMES,
     REPLICA_CLASSES,
@@ -29,5 +29,6 @@ __all__ = [
     "naive_fusion",
     "replica_labels_from_raw",
     "transfer_nearest",
+    "transfer_opaque",
     "vote_projection",
 ]

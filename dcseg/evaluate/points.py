@@ -14,6 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from dcseg.evaluate.config import EvaluateConfig
+
 
 def transfer_nearest(
     gaussian_xyz: NDArray[Any],
@@ -65,6 +67,23 @@ def _project(
     row = np.floor(v / w + 0.5)
     inside = (col >= 0) & (col < width) & (row >= 0) & (row < height)
     return idx[inside], row[inside].astype(np.int64), col[inside].astype(np.int64), cam[2][inside]
+
+
+def transfer_opaque(
+    gaussian_xyz: NDArray[Any],
+    opacities: NDArray[Any],
+    gaussian_labels: NDArray[Any],
+    points: NDArray[Any],
+    cfg: EvaluateConfig,
+) -> NDArray[np.int64]:
+    """The 3D protocol of the evaluation: each point takes the label of the nearest Gaussian
+    whose opacity is above ``cfg.min_opacity``, if within ``cfg.max_distance`` (else -1)."""
+    opaque = np.asarray(opacities).reshape(-1) > cfg.min_opacity
+    labels = np.asarray(gaussian_labels)
+    if opaque.shape != labels.shape:
+        raise ValueError(f"opacities must be {labels.shape}, got {opaque.shape}")
+    xyz = np.asarray(gaussian_xyz).reshape(-1, 3)[opaque]
+    return transfer_nearest(xyz, labels[opaque], points, cfg.max_distance)
 
 
 def vote_projection(

@@ -20,6 +20,7 @@ from dcseg.evaluate import (
     naive_fusion,
     replica_labels_from_raw,
     transfer_nearest,
+    transfer_opaque,
     vote_projection,
 )
 
@@ -110,6 +111,21 @@ def test_transfer_nearest_with_max_distance() -> None:
     assert transfer_nearest(np.zeros((0, 3)), np.zeros(0), points, 1.0).tolist() == [-1] * 5
     with pytest.raises(ValueError, match="gaussian_labels"):
         transfer_nearest(xyz, labels[:2], points, 0.2)
+
+
+def test_transfer_opaque_follows_the_evaluation_protocol() -> None:
+    """evaluation.md: the nearest Gaussian with opacity above 0.05, if within 5 cm. A nearer
+    transparent Gaussian must not win, and 6 cm is too far."""
+    xyz = np.array([[0.0, 0, 0], [0.03, 0, 0]])
+    opacity = np.array([0.01, 0.9])
+    labels = np.array([0, 1])
+    points = np.array([[0.0, 0, 0], [0.09, 0, 0]])
+    out = transfer_opaque(xyz, opacity, labels, points, EvaluateConfig())
+    np.testing.assert_array_equal(out, [1, -1])
+    loose = EvaluateConfig(min_opacity=0.0, max_distance=0.1)
+    np.testing.assert_array_equal(transfer_opaque(xyz, opacity, labels, points, loose), [0, 1])
+    with pytest.raises(ValueError, match="min_opacity"):
+        EvaluateConfig(min_opacity=1.0)
 
 
 K = np.array([[10.0, 0, 4.5], [0, 10.0, 4.5], [0, 0, 1]])

@@ -1,6 +1,6 @@
 """Compile (or load from numba's on-disk cache) every numba kernel before the first real run.
 
-Each kernel is compiled on first use, ~50 s of CPU in all when nothing is cached. Every kernel
+Each kernel is compiled on first use, ~30 s of CPU in all when nothing is cached. Every kernel
 is declared ``cache=True``, so a compiled kernel is written next to its module
 (``__pycache__``) or, when ``NUMBA_CACHE_DIR`` is set, under that folder (set it where the
 package folder is read-only, e.g. an installed image). :func:`warm_kernels` runs the stages

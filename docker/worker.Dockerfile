@@ -44,7 +44,7 @@ COPY worker ./worker
 RUN pip install ".[cuda]" "psycopg[binary]>=3.1"
 
 # numba writes compiled kernels next to the package (read-only for dcseg here) or under
-# NUMBA_CACHE_DIR: a folder the worker owns, filled at build time by `dcseg warmup` (~50 s of
+# NUMBA_CACHE_DIR: a folder the worker owns, filled at build time by `dcseg warmup` (~30 s of
 # CPU once instead of in every new container). On a host whose CPU differs from the build
 # host's, numba compiles again on first use and adds those kernels to the same folder.
 ENV NUMBA_CACHE_DIR=/opt/numba-cache

@@ -19,6 +19,6 @@ else
     echo "setup: npm not found; the browser viewer is not built (see viewer/)" >&2
 fi
 
-# Compile the numba kernels once into their on-disk cache (~50 s of CPU), so that the first run
+# Compile the numba kernels once into their on-disk cache (~30 s of CPU), so that the first run
 # does not; prints the count of kernels compiled or loaded.
 .venv/bin/dcseg warmup | tail -n 2

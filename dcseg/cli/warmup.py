@@ -16,7 +16,7 @@ def register(subparsers: Any) -> None:
         description="Run every stage that uses a numba kernel on a tiny in-memory scene, so that "
         "each kernel is compiled once and written to numba's cache (next to the installed "
         "package, or under NUMBA_CACHE_DIR when set: set it when the package folder is "
-        "read-only). Later runs load the kernels instead of compiling them (~50 s of CPU). "
+        "read-only). Later runs load the kernels instead of compiling them (~30 s of CPU). "
         "Prints each kernel and whether it was compiled or loaded; exits 1 when a kernel "
         "was not reached.",
     )

@@ -15,9 +15,10 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path, PurePosixPath
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import httpx
+if TYPE_CHECKING:  # imported where used: the CLI's argument parser imports this module
+    import httpx
 
 __all__ = ["ApiError", "Client", "JobFailed", "TERMINAL"]
 
@@ -74,6 +75,8 @@ class Client:
         timeout: float = 60.0,
         transport: httpx.BaseTransport | None = None,
     ) -> None:
+        import httpx
+
         headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
         self._http = httpx.Client(
             base_url=base_url, headers=headers, timeout=timeout, transport=transport
@@ -276,6 +279,8 @@ class Client:
         """Download the artifact's presigned ``download_url`` straight from the object store
         (no API key is sent there); None when it has none or it fails (expired, unreachable,
         corrupted): the caller then downloads through the API."""
+        import httpx
+
         url = item.get("download_url")
         if not url:
             return None

@@ -18,3 +18,7 @@ if command -v npm >/dev/null; then
 else
     echo "setup: npm not found; the browser viewer is not built (see viewer/)" >&2
 fi
+
+# Compile the numba kernels once into their on-disk cache (~30 s of CPU), so that the first run
+# does not; prints the count of kernels compiled or loaded.
+.venv/bin/dcseg warmup | tail -n 2

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from dcseg.assign.matching import Match
+if TYPE_CHECKING:  # annotations only: matching imports scipy, this module stays light
+    from dcseg.assign.matching import Match
 
 
 def tally(

@@ -56,17 +56,61 @@ def scene_extent(frames: Sequence[Frame], stride: int = 4) -> float:
     return 1.1 * max(camera_radius, surface_radius, 1e-3)
 
 
-def voxel_downsample(
-    points: Points, colours: NDArray[np.float64], voxel: float
+_MAX_KEY = np.iinfo(np.int64).max
+
+
+def voxel_keys(cells: NDArray[np.int64]) -> NDArray[np.int64] | None:
+    """One int64 per row of ``[M, 3]`` integer cells, ordered as the rows are (lexicographic).
+
+    The cells are shifted to start at 0 and combined as ``(x * ny + y) * nz + z``, so sorting
+    the keys sorts the rows as ``np.unique(cells, axis=0)`` does. None when ``nx * ny * nz``
+    does not fit in an int64 (then only the row-wise path works).
+    """
+    if len(cells) == 0:
+        return np.zeros(0, np.int64)
+    low = cells.min(axis=0)
+    spans = [int(h) - int(lo) + 1 for h, lo in zip(cells.max(axis=0), low, strict=True)]
+    if spans[0] * spans[1] * spans[2] - 1 > _MAX_KEY:
+        return None
+    shifted = cells - low
+    keys: NDArray[np.int64] = (shifted[:, 0] * spans[1] + shifted[:, 1]) * spans[2]
+    keys += shifted[:, 2]
+    return keys
+
+
+def voxel_groups(points: Points, voxel: float) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """``(inverse [M], counts [V])``: each point's voxel (voxels in lexicographic order of
+    their integer cell) and the number of points per voxel."""
+    cells = np.floor(points / voxel).astype(np.int64)
+    keys = voxel_keys(cells)
+    if keys is None:  # the cells span more than an int64 can index: unique rows (slower)
+        _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    else:
+        _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    return inverse.reshape(-1), counts
+
+
+def voxel_means(
+    points: Points,
+    colours: NDArray[np.float64],
+    groups: tuple[NDArray[np.intp], NDArray[np.intp]],
 ) -> tuple[Points, NDArray[np.float64]]:
-    """Average the points and colours falling into each voxel of edge ``voxel``."""
-    keys = np.floor(points / voxel).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    """The mean point and colour of each voxel of ``groups`` (from :func:`voxel_groups`)."""
+    inverse, counts = groups
     m = len(counts)
     out_p = np.stack([np.bincount(inverse, points[:, i], m) for i in range(3)], axis=1)
     out_c = np.stack([np.bincount(inverse, colours[:, i], m) for i in range(3)], axis=1)
     return out_p / counts[:, None], out_c / counts[:, None]
+
+
+def voxel_downsample(
+    points: Points, colours: NDArray[np.float64], voxel: float
+) -> tuple[Points, NDArray[np.float64]]:
+    """Average the points and colours falling into each voxel of edge ``voxel``.
+
+    Voxels come out in lexicographic order of their integer cell ``floor(p / voxel)``.
+    """
+    return voxel_means(points, colours, voxel_groups(points, voxel))
 
 
 def auto_voxel_size(extent: float, cfg: ReconstructConfig) -> float:
@@ -86,12 +130,12 @@ def point_cloud(
     if len(points) == 0:
         raise ValueError("no valid depth in the training frames: cannot initialise Gaussians")
     voxel = auto_voxel_size(extent, cfg)
-    cloud = voxel_downsample(points, colours, voxel)
-    while len(cloud[0]) > cfg.max_init_points:
-        voxel *= math.sqrt(len(cloud[0]) / cfg.max_init_points) * 1.05
-        cloud = voxel_downsample(points, colours, voxel)
-    log.info("init: %d depth points -> %d voxels of %.4f m", len(points), len(cloud[0]), voxel)
-    return cloud
+    groups = voxel_groups(points, voxel)
+    while len(groups[1]) > cfg.max_init_points:  # too many: coarser voxels, averaged only once
+        voxel *= math.sqrt(len(groups[1]) / cfg.max_init_points) * 1.05
+        groups = voxel_groups(points, voxel)
+    log.info("init: %d depth points -> %d voxels of %.4f m", len(points), len(groups[1]), voxel)
+    return voxel_means(points, colours, groups)
 
 
 def neighbour_log_scales(points: Points, k: int = 3) -> NDArray[np.float64]:

@@ -119,3 +119,16 @@ def test_config_does_not_import_torch() -> None:
 
     code = "import sys, dcseg.config, dcseg.types, dcseg.cli; assert 'torch' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_cli_parser_imports_no_heavy_package() -> None:
+    """``dcseg --help`` (every verb's parser) stays light: no torch, scipy, numba or httpx."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from dcseg.cli import build_parser; build_parser(); "
+        "print(sorted({'torch', 'scipy', 'numba', 'httpx', 'sklearn'} & set(sys.modules)))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert out.stdout.strip() == "[]"

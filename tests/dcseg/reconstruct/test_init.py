@@ -10,7 +10,14 @@ import pytest
 
 from dcseg.reconstruct import init_from_capture
 from dcseg.reconstruct.config import FAST
-from dcseg.reconstruct.init import auto_voxel_size, backproject, scene_extent, voxel_downsample
+from dcseg.reconstruct.init import (
+    auto_voxel_size,
+    backproject,
+    point_cloud,
+    scene_extent,
+    voxel_downsample,
+    voxel_keys,
+)
 from tests.dcseg.reconstruct.scene import make_capture, surface_distance
 
 
@@ -57,6 +64,76 @@ def test_voxel_downsample_averages() -> None:
     order = np.argsort(out_p[:, 0])
     assert np.allclose(out_p[order], [[0.02, 0.02, 0.02], [0.51, 0.0, 0.0]])
     assert np.allclose(out_c[order], [[0.5, 0.0, 0.5], [0.0, 1.0, 0.0]])
+
+
+def reference_voxel_downsample(
+    points: np.ndarray, colours: np.ndarray, voxel: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The row-wise implementation ``voxel_downsample`` replaced (its test oracle)."""
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    m = len(counts)
+    out_p = np.stack([np.bincount(inverse, points[:, i], m) for i in range(3)], axis=1)
+    out_c = np.stack([np.bincount(inverse, colours[:, i], m) for i in range(3)], axis=1)
+    return out_p / counts[:, None], out_c / counts[:, None]
+
+
+@pytest.mark.parametrize(
+    ("seed", "centre", "spread", "voxel"),
+    [
+        (0, 0.0, 2.0, 0.05),  # around the origin: negative and positive cells
+        (1, -40.0, 3.0, 0.01),  # all cells negative
+        (2, 1e4, 50.0, 0.02),  # far from the origin
+        (3, 0.0, 0.01, 0.1),  # a handful of voxels, many points each
+    ],
+)
+def test_voxel_downsample_matches_the_row_wise_reference(seed, centre, spread, voxel) -> None:
+    rng = np.random.default_rng(seed)
+    points = centre + spread * rng.standard_normal((20_000, 3))
+    points[:, 1] *= 3.0  # unequal spans per axis
+    colours = rng.random((20_000, 3))
+    expected = reference_voxel_downsample(points, colours, voxel)
+    got = voxel_downsample(points, colours, voxel)
+    assert voxel_keys(np.floor(points / voxel).astype(np.int64)) is not None
+    for a, b in zip(got, expected, strict=True):
+        assert a.dtype == b.dtype and a.shape == b.shape
+        assert np.array_equal(a, b)  # bit-identical, same voxel order
+
+
+def test_voxel_downsample_falls_back_when_cells_overflow_an_int64() -> None:
+    rng = np.random.default_rng(4)
+    points = rng.standard_normal((5_000, 3))
+    points[:3] = [[-4e6, -4e6, -4e6], [4e6, 4e6, 4e6], [4e6, -4e6, 0.0]]
+    colours = rng.random((5_000, 3))
+    voxel = 1e-3  # cells span 8e9 per axis: 5e29 voxels do not fit in an int64
+    assert voxel_keys(np.floor(points / voxel).astype(np.int64)) is None
+    expected = reference_voxel_downsample(points, colours, voxel)
+    got = voxel_downsample(points, colours, voxel)
+    for a, b in zip(got, expected, strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_voxel_keys_order_rows_lexicographically() -> None:
+    cells = np.array([[1, -2, 3], [-1, 5, 0], [1, -2, 2], [-1, 4, 9], [0, 0, 0]], np.int64)
+    keys = voxel_keys(cells)
+    assert keys is not None
+    assert np.array_equal(np.argsort(keys), np.lexsort(cells.T[::-1]))
+
+
+def test_point_cloud_coarsens_until_the_cap_as_before(capture) -> None:
+    cfg = replace(FAST, init_pixel_stride=1, max_init_points=300)
+    extent = scene_extent(capture.frames)
+    points, colours = point_cloud(capture.frames, cfg, extent)
+    parts = [backproject(f, 1) for f in capture.frames]
+    all_p = np.concatenate([p for p, _ in parts])
+    all_c = np.concatenate([c for _, c in parts])
+    voxel = auto_voxel_size(extent, cfg)
+    expected = reference_voxel_downsample(all_p, all_c, voxel)
+    while len(expected[0]) > cfg.max_init_points:
+        voxel *= math.sqrt(len(expected[0]) / cfg.max_init_points) * 1.05
+        expected = reference_voxel_downsample(all_p, all_c, voxel)
+    assert np.array_equal(points, expected[0]) and np.array_equal(colours, expected[1])
 
 
 def test_automatic_voxel_size_is_clipped() -> None:

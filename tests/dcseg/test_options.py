@@ -89,6 +89,14 @@ def test_segment_options_seed_every_stage_and_set_scale_and_matcher():
     )
 
 
+def test_segment_options_choose_what_the_label_maps_show():
+    cfg, _ = build_config("fast", parse_options({"segment": {"label_maps": "clusters"}}))
+    assert cfg.assign.maps_from == "clusters"
+    assert build_config("fast", JobOptions())[0].assign.maps_from == "gaussians"
+    with pytest.raises(InputError, match="label_maps"):
+        parse_options({"segment": {"label_maps": "pixels"}})
+
+
 def test_stored_options_rebuild_the_same_configs():
     options = parse_options(
         {"capture": {"size": [64, 48], "stride": 2}, "reconstruct": {"iterations": 9}}

@@ -75,7 +75,8 @@ class Segmentation:
             level (:mod:`dcseg.assign.instances`).
         semantic_ids: ``[N]`` class per Gaussian after label completion, -1 = none.
         cluster_maps: per view name, ``[H, W]`` cluster per pixel (-1 = none), cleaned.
-        label_maps: per view name, ``[H, W]`` class per pixel (-1 = none).
+        label_maps: per view name, ``[H, W]`` class per pixel (-1 = none): rendered from
+            ``semantic_ids`` or from the cluster maps (``AssignConfig.maps_from``).
     """
 
     clustering: Clustering

@@ -171,10 +171,14 @@ def baselines(saved: SavedRun, scorer: Scorer, cfg: PipelineConfig) -> dict[str,
 
 
 def overridden(cfg: PipelineConfig, overrides: Sequence[str]) -> PipelineConfig:
-    """``cfg`` with ``section.field=JSON`` overrides (``assign.complete=false``, ``scale=0.5``)."""
+    """``cfg`` with ``section.field=JSON`` overrides (``assign.complete=false``, ``scale=0.5``);
+    a value that is not JSON is a string (``assign.maps_from=clusters``)."""
     for item in overrides:
         key, _, text = item.partition("=")
-        value = json.loads(text)
+        try:
+            value = json.loads(text)
+        except json.JSONDecodeError:
+            value = text
         section, _, name = key.rpartition(".")
         if section:
             cfg = replace(cfg, **{section: replace(getattr(cfg, section), **{name: value})})
@@ -432,7 +436,8 @@ def parser() -> argparse.ArgumentParser:
         nargs="*",
         default=[],
         metavar="KEY=JSON",
-        help="segmentation overrides for ablations, e.g. assign.complete=false scale=0.5",
+        help="segmentation overrides for ablations, e.g. assign.complete=false scale=0.5 "
+        "assign.maps_from=clusters",
     )
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--reconstruct-iterations", type=int, help="override (smoke runs only)")

@@ -245,6 +245,7 @@ def resegment_job(
     *,
     scale: float | None = None,
     matcher: str | None = None,
+    label_maps: str | None = None,
     semantic_masks: Path | None = None,
     vocabulary: Path | None = None,
     ground_truth: Path | None = None,
@@ -257,6 +258,8 @@ def resegment_job(
         out: the new output folder (not ``run``).
         scale: a new clustering scale (``recluster``); None keeps the run's.
         matcher: ``"assignment"`` or ``"matching"``; None keeps the run's.
+        label_maps: what ``labels/`` shows, ``"gaussians"`` or ``"clusters"``
+            (``AssignConfig.maps_from``); None keeps the run's.
         semantic_masks, vocabulary: new class-aware masks (``reclassify``); None keeps the
             run's. A run from :func:`train_job` has none, so they are required there.
         ground_truth: a ground-truth PLY to evaluate against.
@@ -276,6 +279,8 @@ def resegment_job(
     cfg = replace(cfg, scale=cfg.scale if scale is None else scale)
     if matcher is not None:
         cfg = replace(cfg, assign=replace(cfg.assign, mode=matcher))  # type: ignore[arg-type]
+    if label_maps is not None:
+        cfg = replace(cfg, assign=replace(cfg.assign, maps_from=label_maps))  # type: ignore[arg-type]
     record = {**saved.record, "parent": str(run)}
     return _finish(replace(saved, record=record), cfg, out, clock, gt, on_progress)
 

@@ -235,7 +235,8 @@ class BudgetOptionsIn(_Strict):
 
 
 class SegmentOptionsIn(_Strict):
-    """Segmentation parameters: clustering scale, matcher and the seed of every stage."""
+    """Segmentation parameters: clustering scale, matcher, label maps and the seed of every
+    stage."""
 
     scale: float = Field(
         default=DEFAULT_SCALE, ge=0.0, le=1.0, description="clustering scale in [0, 1]"
@@ -244,6 +245,11 @@ class SegmentOptionsIn(_Strict):
         default="assignment", description="class replication (assignment) or one-to-one"
     )
     seed: int = Field(default=0, ge=0, le=MAX_SEED, description="seed of every random choice")
+    label_maps: Literal["gaussians", "clusters"] = Field(
+        default="gaussians",
+        description="rendered label maps from the Gaussians' final classes (gaussians, as in the "
+        "labelled PLY) or from the cluster maps through each cluster's class (clusters)",
+    )
 
 
 class JobOptions(_Strict):
@@ -296,7 +302,7 @@ def build_config(preset_name: str, options: JobOptions) -> tuple[PipelineConfig,
             reconstruct=reconstruct,
             affinity=affinity,
             scale=seg.scale,
-            assign=dataclasses.replace(base.assign, mode=seg.matcher),
+            assign=dataclasses.replace(base.assign, mode=seg.matcher, maps_from=seg.label_maps),
             budget=_budget(base.budget, options.budget),
             rules=dataclasses.replace(base.rules, fixed=_explicit(options)),
         ).seeded(seg.seed)

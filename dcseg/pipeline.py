@@ -77,7 +77,8 @@ class Segmentation:
             level (:mod:`dcseg.assign.instances`).
         semantic_ids: ``[N]`` class per Gaussian after label completion, -1 = none.
         cluster_maps: per view name, ``[H, W]`` cluster per pixel (-1 = none), cleaned.
-        label_maps: per view name, ``[H, W]`` class per pixel (-1 = none).
+        label_maps: per view name, ``[H, W]`` class per pixel (-1 = none): rendered from
+            ``semantic_ids`` or from the cluster maps (``AssignConfig.maps_from``).
     """
 
     clustering: Clustering
@@ -225,7 +226,10 @@ def segment_scene(
     class, unlabelled Gaussians on labelled surfaces are completed
     (:mod:`dcseg.assign.completion`), and clusters become object instances
     (:mod:`dcseg.assign.instances`; ``class_names`` names the vocabulary, so that
-    ``cfg.assign.stuff_classes`` can be found in it).
+    ``cfg.assign.stuff_classes`` can be found in it). With ``cfg.assign.maps_from ==
+    "gaussians"`` the label maps are rendered from the Gaussians' final classes (those of
+    ``semantic_ids``), in the same pass over the views as the second cluster maps; with
+    ``"clusters"`` they are the cluster maps through each cluster's class.
     """
     features = gated_features(trained.affinity, cfg.scale)
     g = trained.gaussians
@@ -243,15 +247,23 @@ def segment_scene(
     needed = (a.min_share_ratio > 0 and bool(labelled)) or a.objects or a.complete
     # one pass over the views' blending weights serves the consistency step and the objects
     evidence = _scene_evidence(trained, semantic, n_classes) if needed else None
-    if a.min_share_ratio > 0 and labelled and evidence is not None:
+    refine = a.min_share_ratio > 0 and bool(labelled) and evidence is not None
+    if refine and evidence is not None:
         clustering, assignment = _drop_inconsistent(evidence, clustering, assignment, cfg)
-        maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, "refine")
     semantic_ids = label_map(clustering.labels, assignment.labels)
-    label_maps = {name: label_map(ids, assignment.labels) for name, ids in maps.items()}
     instances, semantic_ids = _objects(
         trained, evidence, clustering, assignment, semantic_ids, cfg, class_names
     )
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
+    if a.maps_from == "gaussians":
+        maps, label_maps = _final_maps(
+            trained.views, clustering.labels if refine else None, maps, semantic_ids, cfg,
+            on_progress,
+        )  # fmt: skip
+    else:
+        if refine:
+            maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, "refine")
+        label_maps = {name: label_map(ids, assignment.labels) for name, ids in maps.items()}
     return Segmentation(clustering, assignment, instances, semantic_ids, maps, label_maps)
 
 
@@ -317,6 +329,31 @@ def _cluster_maps(
         maps[view.name] = cluster_map(view.blend, cluster_labels, cfg.masks)
         on_progress(stage, (i + 1) / len(views), f"view {view.name}")
     return maps
+
+
+def _final_maps(
+    views: Sequence[ViewState],
+    cluster_labels: NDArray[np.int64] | None,
+    maps: dict[str, NDArray[np.int64]],
+    semantic_ids: NDArray[np.int64],
+    cfg: PipelineConfig,
+    on_progress: Progress,
+) -> tuple[dict[str, NDArray[np.int64]], dict[str, NDArray[np.int64]]]:
+    """Cluster maps (rendered again when ``cluster_labels`` is given, else ``maps``) and label
+    maps rendered from the Gaussians' final classes, in one pass over the views' weights.
+
+    A class is rendered as a cluster is (:func:`dcseg.segment.cluster_map`): per pixel the
+    class with the largest blending weight summed over its Gaussians, if at least
+    ``cfg.masks.min_weight``, then the 2D component filter.
+    """
+    clusters, classes = {}, {}
+    for i, view in enumerate(views):
+        blend = view.blend  # read once: a view in the cache folder is loaded per access
+        if cluster_labels is not None:
+            clusters[view.name] = cluster_map(blend, cluster_labels, cfg.masks)
+        classes[view.name] = cluster_map(blend, semantic_ids, cfg.masks)
+        on_progress("refine", (i + 1) / len(views), f"view {view.name}")
+    return (clusters if cluster_labels is not None else maps), classes
 
 
 def _drop_inconsistent(

@@ -162,6 +162,7 @@ class SegmentStage:
             out,
             scale=cfg.scale,
             matcher=cfg.assign.mode,
+            label_maps=cfg.assign.maps_from,
             semantic_masks=layout["semantic_masks"],
             vocabulary=layout["vocabulary"],
             ground_truth=layout["ground_truth"],

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 AssignMode = Literal["assignment", "matching"]
+MapsFrom = Literal["gaussians", "clusters"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,13 @@ class AssignConfig:
         completion_rounds: passes of completion; each reaches one neighbourhood further.
         evidence_weight: weight of a Gaussian's own class-evidence share against its
             neighbours' class share in completion.
+        maps_from: what the rendered label maps (``labels/``) show: ``"gaussians"`` = per pixel
+            the class with the largest blending weight summed over the Gaussians of that class,
+            each Gaussian with its final class (after the consistency step, adoption of
+            unlabelled clusters and label completion: the classes the PLY carries), so maps
+            and 3D labels agree; ``"clusters"`` = the cluster maps through each cluster's
+            class (the paper), which the per-Gaussian steps never reach. Both are filtered by
+            the 2D component filter of the cluster maps (``MaskConfig``).
     """
 
     mode: AssignMode = "assignment"
@@ -87,6 +95,7 @@ class AssignConfig:
     complete: bool = True
     completion_rounds: int = 3
     evidence_weight: float = 1.0
+    maps_from: MapsFrom = "gaussians"
 
     def __post_init__(self) -> None:
         if self.mode not in ("assignment", "matching"):
@@ -101,6 +110,8 @@ class AssignConfig:
             raise ValueError(f"min_share_ratio must be in [0, 1], got {self.min_share_ratio}")
         if self.min_area < 0:
             raise ValueError(f"min_area must be >= 0, got {self.min_area}")
+        if self.maps_from not in ("gaussians", "clusters"):
+            raise ValueError(f"maps_from must be 'gaussians' or 'clusters', got {self.maps_from!r}")
         self._check_objects()
 
     def _check_objects(self) -> None:

@@ -92,6 +92,7 @@ FLAGS = {
     "capture.min_confidence": "--min-confidence",
     "segment.scale": "--scale",
     "segment.matcher": "--matcher",
+    "segment.label_maps": "--label-maps",
     "segment.seed": "--seed",
     "budget.max_side": "--max-side",
     "budget.max_frames": "--keyframes",

@@ -17,7 +17,7 @@ Job = Callable[[Callable[[str, float, str], None]], dict[str, Any]]
 
 
 def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
-    """``--preset --matcher --scale --seed --overwrite --quiet``."""
+    """``--preset --matcher --scale --label-maps --seed --overwrite --quiet``."""
     group = parser.add_argument_group("method")
     group.add_argument("--preset", choices=("fast", "paper"), default="fast", help="(fast)")
     group.add_argument(
@@ -25,6 +25,13 @@ def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--scale", type=float, default=DEFAULT_SCALE, help="clustering scale in [0, 1]"
+    )
+    group.add_argument(
+        "--label-maps",
+        choices=("gaussians", "clusters"),
+        default="gaussians",
+        help="labels/ rendered from the Gaussians' final classes, as in the labelled PLY "
+        "(gaussians), or from the cluster maps through each cluster's class (clusters)",
     )
     group.add_argument("--seed", type=int, default=0, help="seed of every random choice")
     add_device_option(group)
@@ -46,8 +53,14 @@ def add_output_options(parser: argparse.ArgumentParser) -> None:
 
 
 def job_config(args: argparse.Namespace) -> tuple[PipelineConfig, CaptureOptions]:
-    """The configs of ``--preset --scale --matcher --seed``, the capture and budget flags."""
-    segment = {"scale": args.scale, "matcher": args.matcher, "seed": args.seed}
+    """The configs of ``--preset --scale --matcher --label-maps --seed``, the capture and
+    budget flags."""
+    segment = {
+        "scale": args.scale,
+        "matcher": args.matcher,
+        "seed": args.seed,
+        "label_maps": args.label_maps,
+    }
     options = {"capture": capture_fields(args), "segment": segment, "budget": budget_fields(args)}
     return build(args.preset, options)
 

@@ -89,6 +89,30 @@ def test_segment_options_seed_every_stage_and_set_scale_and_matcher():
     )
 
 
+def test_segment_options_choose_what_the_label_maps_show():
+    cfg, _ = build_config("fast", parse_options({"segment": {"label_maps": "clusters"}}))
+    assert cfg.assign.maps_from == "clusters"
+    assert build_config("fast", JobOptions())[0].assign.maps_from == "gaussians"
+    with pytest.raises(InputError, match="label_maps"):
+        parse_options({"segment": {"label_maps": "pixels"}})
+
+
+def test_cli_label_maps_flag_reaches_the_config(tmp_path: Path, monkeypatch):
+    seen = []
+
+    def record(args):
+        from dcseg.cli._pipeline import job_config
+
+        seen.append(job_config(args)[0].assign.maps_from)
+        return 0
+
+    monkeypatch.setattr("dcseg.cli.run.run", record)
+    args = ["run", str(tmp_path), "--agnostic-masks", str(tmp_path), "--semantic-masks"]
+    args += [str(tmp_path), "--vocabulary", str(tmp_path / "v.txt"), "--out", str(tmp_path / "o")]
+    assert main(args) == 0 and main([*args, "--label-maps", "clusters"]) == 0
+    assert seen == ["gaussians", "clusters"]
+
+
 def test_stored_options_rebuild_the_same_configs():
     options = parse_options(
         {"capture": {"size": [64, 48], "stride": 2}, "reconstruct": {"iterations": 9}}

@@ -126,9 +126,11 @@ def test_recluster_reuses_training(
     for name in OUTPUTS:
         assert (out / name).is_file(), name
     # The derived run can itself be re-clustered.
-    resegment_job(out, tmp_path / "fine", scale=0.2, matcher="matching")
+    resegment_job(out, tmp_path / "fine", scale=0.2, matcher="matching", label_maps="clusters")
     fine = json.loads((tmp_path / "fine" / "run.json").read_text())
     assert fine["config"]["assign"]["mode"] == "matching"
+    assert fine["config"]["assign"]["maps_from"] == "clusters"
+    assert record["config"]["assign"]["maps_from"] == "gaussians"
 
 
 def test_reclassify_with_other_masks(
@@ -227,8 +229,11 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
     n_classes = len(saved.vocabulary)
 
     def segment(ratio: float) -> Segmentation:
-        # completion and objects off: this test is about the consistency step alone
-        assign = replace(base.assign, min_share_ratio=ratio, complete=False, objects=False)
+        # completion and objects off: this test is about the consistency step alone, and its
+        # label maps are the cluster maps through each cluster's class
+        assign = replace(
+            base.assign, min_share_ratio=ratio, complete=False, objects=False, maps_from="clusters"
+        )
         return segment_scene(saved.trained, saved.semantic, n_classes, replace(base, assign=assign))
 
     plain, refined = segment(0.0), segment(0.9)

@@ -1,0 +1,105 @@
+"""segment_scene on a hand-made scene: what the rendered label maps show.
+
+Clustering is fixed (``cluster_features`` and ``gated_features`` are replaced) so the test is
+about what follows it: voting, the consistency step, label completion and the maps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from dcseg.blend import BlendWeights
+from dcseg.cluster.features import Clustering
+from dcseg.config import PipelineConfig, preset
+from dcseg.gaussians import Gaussians
+from dcseg.io.run_state import ViewState
+from dcseg.pipeline import TrainedScene, segment_scene
+from dcseg.segment import cluster_map, label_map
+from dcseg.types import SemanticMap
+
+N = 12
+"""Gaussians 0..11 on a line, one per pixel of a 1 x 12 view."""
+CLUSTERS = np.array([0] * 8 + [1] * 4)
+"""Cluster 0 holds Gaussians 0-7, though 6 and 7 sit on what the class maps call class 1."""
+CLASSES = np.array([[0] * 6 + [1] * 6], dtype=np.int32)
+"""The class-aware map of every view: pixels 0-5 class 0, 6-11 class 1."""
+
+
+def scene(n_views: int = 2) -> TrainedScene:
+    means = torch.zeros(N, 3, dtype=torch.float64)
+    means[:, 0] = torch.arange(N, dtype=torch.float64)
+    gaussians = Gaussians(
+        means,
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(N, 1).double(),
+        torch.zeros(N, 3, dtype=torch.float64),
+        torch.full((N,), 3.0, dtype=torch.float64),
+        torch.zeros(N, 1, 3, dtype=torch.float64),
+    )
+    blend = BlendWeights(1, N, torch.arange(N + 1), torch.arange(N), torch.full((N,), 0.9))
+    views = tuple(
+        ViewState.in_memory(f"v{i}", np.eye(3), np.eye(4), blend, np.ones((1, N), np.float32))
+        for i in range(n_views)
+    )
+    return TrainedScene(gaussians, None, views)  # type: ignore[arg-type]
+
+
+@pytest.fixture(autouse=True)
+def fixed_clusters(monkeypatch: pytest.MonkeyPatch) -> None:
+    centers = np.eye(2, dtype=np.float32)
+
+    def clusters(*args: Any, **kwargs: Any) -> Clustering:
+        return Clustering(CLUSTERS.copy(), centers, np.ones(N, dtype=np.float32))
+
+    monkeypatch.setattr("dcseg.pipeline.gated_features", lambda affinity, scale: None)
+    monkeypatch.setattr("dcseg.pipeline.cluster_features", clusters)
+
+
+def config(maps_from: str, **assign: Any) -> PipelineConfig:
+    cfg = preset("fast")
+    changes = {"objects": False, "maps_from": maps_from, **assign}
+    return replace(cfg, assign=replace(cfg.assign, **changes))
+
+
+def segment(cfg: PipelineConfig) -> Any:
+    trained = scene()
+    semantic = {v.name: SemanticMap(v.name, CLASSES) for v in trained.views}
+    return segment_scene(trained, semantic, 2, cfg)
+
+
+def test_label_maps_show_the_gaussians_final_classes() -> None:
+    """Gaussians 6-7 leave cluster 0 (their own evidence says class 1, the cluster's class is
+    0) and completion gives them class 1: the maps rendered from the Gaussians show it; the
+    cluster maps through each cluster's class leave their pixels unlabelled."""
+    new, old = segment(config("gaussians")), segment(config("clusters"))
+    assert new.assignment.labels.tolist() == [0, 1] == old.assignment.labels.tolist()
+    assert new.semantic_ids.tolist() == [0] * 6 + [1] * 6  # consistency, then completion
+    assert np.array_equal(new.semantic_ids, old.semantic_ids)  # the option changes maps only
+    for name in ("v0", "v1"):
+        assert new.label_maps[name].tolist() == CLASSES.tolist()
+        assert old.label_maps[name].tolist() == [[0] * 6 + [-1] * 2 + [1] * 4]
+        # the cluster level is the same either way: rendered from the refined clusters
+        assert np.array_equal(new.cluster_maps[name], old.cluster_maps[name])
+        assert new.cluster_maps[name].tolist() == [[0] * 6 + [-1] * 2 + [1] * 4]
+
+
+def test_label_maps_follow_completion_without_the_consistency_step() -> None:
+    """With the consistency step off, cluster 0 keeps Gaussians 6-7 and its class 0; the maps
+    from the Gaussians agree with the per-Gaussian classes pixel by pixel, and the cluster
+    maps are the first ones (no second render)."""
+    cfg = config("gaussians", min_share_ratio=0.0)
+    seg = segment(cfg)
+    assert seg.semantic_ids.tolist() == [0] * 8 + [1] * 4
+    blend = scene().views[0].blend
+    for name, classes in seg.label_maps.items():
+        assert np.array_equal(classes, cluster_map(blend, seg.semantic_ids, cfg.masks))
+        assert np.array_equal(classes, label_map(seg.cluster_maps[name], seg.assignment.labels))
+
+
+def test_maps_from_is_checked() -> None:
+    with pytest.raises(ValueError, match="maps_from"):
+        replace(preset("fast").assign, maps_from="pixels")  # type: ignore[arg-type]

@@ -8,6 +8,7 @@ import pytest
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
 from dcseg.types import Capture, Frame, Intrinsics, pose_problem
+from tests.imports import loaded_after
 
 
 def make_frame(name: str = "0", width: int = 8, height: int = 6, **overrides: object) -> Frame:
@@ -123,12 +124,6 @@ def test_config_does_not_import_torch() -> None:
 
 def test_cli_parser_imports_no_heavy_package() -> None:
     """``dcseg --help`` (every verb's parser) stays light: no torch, scipy, numba or httpx."""
-    import subprocess
-    import sys
-
-    code = (
-        "import sys; from dcseg.cli import build_parser; build_parser(); "
-        "print(sorted({'torch', 'scipy', 'numba', 'httpx', 'sklearn'} & set(sys.modules)))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
-    assert out.stdout.strip() == "[]"
+    heavy = ("torch", "scipy", "numba", "httpx", "sklearn")
+    statement = "from dcseg.cli import build_parser; build_parser()"
+    assert loaded_after(statement, heavy) == []

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from dataclasses import replace
 
 import numpy as np
@@ -23,6 +21,7 @@ from dcseg.cluster import (
     fit_clusters,
     remove_outliers_3d,
 )
+from tests.imports import loaded_after
 
 
 def blobs(
@@ -254,12 +253,8 @@ def test_all_is_sorted_and_complete() -> None:
 
 
 def test_config_and_package_import_without_torch_or_hdbscan() -> None:
-    code = (
-        "import sys, dcseg.cluster, dcseg.cluster.config; "
-        "print(sorted({'torch', 'hdbscan', 'sklearn'} & set(sys.modules)))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "[]"
+    statement = "import dcseg.cluster, dcseg.cluster.config"
+    assert loaded_after(statement, ("torch", "hdbscan", "sklearn")) == []
 
 
 def test_docstring_examples() -> None:

@@ -30,10 +30,13 @@ def measure(run: Path, scene: Path) -> dict[str, Any]:
     surface = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1)
     report = surface_report(g.means.detach().numpy(), g.opacities().detach().numpy(), surface)
     row: dict[str, Any] = {"run": str(run), "gaussians": len(g), **report}
-    record = run / "run.json"
+    record, alone = run / "run.json", run / "reconstruction.json"
+    rec: dict[str, Any] = {}
     if record.is_file():
         rec = json.loads(record.read_text(encoding="utf-8")).get("reconstruction", {})
-        row["psnr"], row["depth_mae"] = rec.get("psnr"), rec.get("depth_mae")
+    elif alone.is_file():
+        rec = json.loads(alone.read_text(encoding="utf-8"))
+    row["psnr"], row["depth_mae"] = rec.get("psnr"), rec.get("depth_mae")
     return row
 
 

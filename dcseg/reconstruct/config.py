@@ -67,6 +67,21 @@ class ReconstructConfig:
     init_opacity: float = 0.3
     """Opacity of every initial Gaussian."""
 
+    init_thickness: float | None = None
+    """Start every Gaussian as a disc in the plane of its neighbours, this fraction as thick
+    as it is wide (:func:`dcseg.reconstruct.surface.disc_frames`); None = isotropic blobs."""
+
+    # --- surface priors (dcseg.reconstruct.surface) ---
+    thickness_weight: float = 0.0
+    """Weight of the mean smallest scale (metres) in the loss: keeps Gaussians thin discs."""
+
+    centre_weight: float = 0.0
+    """Weight of the mean distance (metres) of the Gaussian centres to the observed depth of
+    the step's view, counting the centres within ``centre_band`` of it."""
+
+    centre_band: float = 4.0
+    """The band of ``centre_weight``, in initial voxel sizes (see ``voxel_size``)."""
+
     # --- loss ---
     ssim_lambda: float = 0.2
     """Weight of ``1 - SSIM`` in the RGB loss ``(1 - l) * L1 + l * (1 - SSIM)``."""
@@ -147,6 +162,11 @@ class ReconstructConfig:
             raise ValueError(f"init_opacity must be in (0, 1), got {self.init_opacity}")
         if not 0.0 <= self.ssim_lambda <= 1.0:
             raise ValueError(f"ssim_lambda must be in [0, 1], got {self.ssim_lambda}")
+        if self.init_thickness is not None and not 0.0 < self.init_thickness <= 1.0:
+            raise ValueError(f"init_thickness must be in (0, 1], got {self.init_thickness}")
+        for name in ("thickness_weight", "centre_weight", "centre_band"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.max_init_points < 1:
             raise ValueError(f"max_init_points must be >= 1, got {self.max_init_points}")
 

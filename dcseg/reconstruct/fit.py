@@ -19,8 +19,10 @@ from dcseg.reconstruct.densify import (
     reset_opacity,
     view_space_grad_norm,
 )
+from dcseg.reconstruct.init import auto_voxel_size
 from dcseg.reconstruct.losses import depth_l1, rgb_loss
 from dcseg.reconstruct.sh import eval_sh
+from dcseg.reconstruct.surface import centre_depth_loss, thickness_loss
 from dcseg.reconstruct.views import View, random_crop
 from dcseg.render import Camera, RenderOutput, render
 
@@ -143,10 +145,24 @@ class _Trainer:
         torch.autograd.backward(loss)
         if it < cfg.densify_until:
             self._accumulate(view.camera)
+        self._surface_priors(view)  # after _accumulate: densification sees the image gradient
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
         self._control(it + 1)
         return float(loss.detach())
+
+    def _surface_priors(self, view: View) -> None:
+        """Add the gradients of the thickness and centre-depth terms (not in the step loss)."""
+        cfg = self.cfg
+        terms: list[Tensor] = []
+        if cfg.thickness_weight > 0:
+            terms.append(cfg.thickness_weight * thickness_loss(self.params["log_scales"]))
+        if cfg.centre_weight > 0:
+            band = cfg.centre_band * auto_voxel_size(self.extent, cfg)
+            offset = centre_depth_loss(self.params["means"], view.camera, view.depth, band)
+            terms.append(cfg.centre_weight * offset)
+        if terms:
+            torch.autograd.backward(torch.stack(terms).sum())
 
     def _accumulate(self, camera: Camera) -> None:
         means = self.params["means"]

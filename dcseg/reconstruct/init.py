@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from dcseg.gaussians import SH_C0, Gaussians
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.reconstruct.surface import disc_frames
 from dcseg.types import Capture, Frame
 
 log = logging.getLogger(__name__)
@@ -155,11 +156,18 @@ def gaussians_from_points(
     cfg: ReconstructConfig,
     device: torch.device | str = "cpu",
 ) -> Gaussians:
-    """Isotropic Gaussians at ``points`` with colour ``colours`` (SH DC, higher orders zero)."""
+    """Gaussians at ``points`` with colour ``colours`` (SH DC, higher orders zero).
+
+    Isotropic, or with ``cfg.init_thickness`` discs in their neighbours' plane; either way as
+    wide as the mean distance to the 3 nearest neighbours.
+    """
     n = len(points)
     log_scale = np.repeat(neighbour_log_scales(points)[:, None], 3, axis=1)
     quats = np.zeros((n, 4))
     quats[:, 0] = 1.0
+    if cfg.init_thickness is not None:  # discs in the plane of the neighbours
+        quats, _ = disc_frames(points)
+        log_scale[:, 2] += math.log(cfg.init_thickness)
     sh = np.zeros((n, (cfg.sh_degree + 1) ** 2, 3))
     sh[:, 0] = (colours - 0.5) / SH_C0
     logit = math.log(cfg.init_opacity / (1.0 - cfg.init_opacity))
@@ -197,8 +205,9 @@ def init_from_capture(
     Back-projects every ``cfg.init_pixel_stride``-th pixel with valid depth, averages the points
     per voxel (``cfg.voxel_size`` or ``extent * cfg.voxel_fraction`` clipped to
     ``[voxel_min, voxel_max]``, enlarged until at most ``cfg.max_init_points`` remain), and
-    makes isotropic Gaussians sized by the mean distance to the 3 nearest neighbours, identity
-    rotation, opacity ``cfg.init_opacity`` and SH DC from the voxel's mean colour.
+    makes Gaussians (isotropic, or discs with ``cfg.init_thickness``) as wide as the mean
+    distance to the 3 nearest neighbours, opacity ``cfg.init_opacity`` and SH DC from the
+    voxel's mean colour.
 
     Args:
         capture: the posed RGB-D frames.

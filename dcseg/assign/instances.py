@@ -16,8 +16,10 @@ with a documented threshold of :class:`~dcseg.assign.config.AssignConfig`:
    agree and each lies in the other's plane), so every connected surface is one region and
    walls meeting at a corner are two.
 
-Objects and regions with fewer than ``min_instance_gaussians`` Gaussians dissolve; their
-Gaussians, and labelled Gaussians outside every cluster, join the object or region of a near
+Objects and regions with fewer than ``min_instance_gaussians`` Gaussians dissolve, and so do
+objects far smaller than the largest object of their class (``min_fragment_share`` of its
+size: a ball's loose patches next to two whole balls); their Gaussians, and
+labelled Gaussians outside every cluster, join the object or region of a near
 Gaussian of their class, or stay out of the instance list (they keep their class).
 """
 
@@ -318,6 +320,7 @@ def object_instances(
     own = (labels >= 0) & (semantic == (f.classes[np.maximum(labels, 0)] if k else -2))
     group = np.where((semantic >= 0) & own, group, -1)
     group = _drop_small(group, cfg.min_instance_gaussians)
+    group = drop_fragments(group, semantic, stuff, cfg.min_fragment_share)
     group = _attach_loose(xyz, semantic, group, radius, cfg.neighbours)
     scores = cluster_scores[np.maximum(labels, 0)] if k else np.zeros(len(labels))
     scores = np.where(labels >= 0, scores, 0.0)
@@ -330,6 +333,40 @@ def _drop_small(group: NDArray[np.int64], min_size: int) -> NDArray[np.int64]:
     _, inverse, sizes = np.unique(group[inside], return_inverse=True, return_counts=True)
     out = group.copy()
     out[inside] = np.where(sizes[inverse] >= min_size, group[inside], -1)
+    return out
+
+
+def drop_fragments(
+    group: NDArray[np.int64],
+    semantic: NDArray[np.int64],
+    stuff: NDArray[np.bool_],
+    share: float,
+) -> NDArray[np.int64]:
+    """Objects smaller than ``share`` of the largest object of their class dissolve (-1).
+
+    Args:
+        group: ``[N]`` object key per Gaussian, -1 = none.
+        semantic: ``[N]`` class per Gaussian; an object's class is its first Gaussian's
+            (every Gaussian of a group carries the group's class here).
+        stuff: ``[C]`` True for stuff classes, whose regions are never fragments.
+        share: the share of the largest object of the class below which an object dissolves;
+            0 = off.
+    """
+    inside = np.flatnonzero(group >= 0)
+    if share <= 0 or len(inside) == 0:
+        return group
+    keys, first, inverse, sizes = np.unique(
+        group[inside], return_index=True, return_inverse=True, return_counts=True
+    )
+    classes = semantic[inside[first]]
+    small = np.zeros(len(keys), dtype=bool)
+    for cls in np.unique(classes):
+        if 0 <= cls < len(stuff) and stuff[cls]:
+            continue
+        of_class = classes == cls
+        small |= of_class & (sizes < share * sizes[of_class].max())
+    out = group.copy()
+    out[inside[small[inverse]]] = -1
     return out
 
 

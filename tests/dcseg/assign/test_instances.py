@@ -13,6 +13,7 @@ from dcseg.assign.instances import (
     Instances,
     adopt_fragments,
     cluster_contacts,
+    drop_fragments,
     object_instances,
 )
 
@@ -173,3 +174,32 @@ def test_a_raised_platform_is_not_the_floor() -> None:
     parts = [(low, 0), (np.concatenate([high, bridge]), 1)]
     result, _, _ = build(parts, [FLOOR, FLOOR], [unit(1, 0, 0)] * 2)
     assert result.n_instances == 2
+
+
+def test_a_loose_patch_far_smaller_than_the_objects_of_its_class_dissolves() -> None:
+    """A 25-Gaussian duck patch next to a 225-Gaussian duck is a fragment (below 15 % of the
+    largest duck): it leaves the instance list, keeping its class. A lone 25-Gaussian mug is
+    the only mug and stays; a small floor region is stuff and stays."""
+    duck, patch_, mug = patch(0, 0.3, 0, 0.3), patch(1, 1.1, 0, 0.1), patch(3, 3.1, 0, 0.1)
+    floor, floor_bit = patch(0, 1, 2, 3), patch(5, 5.1, 2, 2.1)
+    parts = [(duck, 0), (patch_, 1), (mug, 2), (floor, 3), (floor_bit, 4)]
+    centers = [unit(1, 0, 0), unit(0, 1, 0), unit(0, 0, 1), unit(1, 1, 0), unit(1, 0, 1)]
+    classes = [DUCK, DUCK, MUG, FLOOR, FLOOR]
+    cfg = AssignConfig(min_fragment_share=0.15)
+    result, labels, semantic = build(parts, classes, centers, cfg)
+    assert sorted(result.classes.tolist()) == sorted([DUCK, MUG, FLOOR, FLOOR])
+    assert np.all(result.ids[labels == 1] == -1) and np.all(semantic[labels == 1] == DUCK)
+    assert result.of_cluster[1] == -1 and result.of_cluster[2] >= 0
+    kept, _, _ = build(parts, classes, centers, AssignConfig(min_fragment_share=0.0))
+    assert kept.n_instances == 5
+
+
+def test_drop_fragments_keeps_every_object_when_off_or_alone() -> None:
+    group = np.array([0] * 100 + [1] * 5 + [-1] * 3, dtype=np.int64)
+    semantic = np.array([DUCK] * 105 + [-1] * 3, dtype=np.int64)
+    stuff = np.zeros(N_CLASSES, dtype=bool)
+    out = drop_fragments(group, semantic, stuff, 0.1)
+    assert out.tolist() == [0] * 100 + [-1] * 8
+    assert drop_fragments(group, semantic, stuff, 0.0).tolist() == group.tolist()
+    stuff[DUCK] = True
+    assert drop_fragments(group, semantic, stuff, 0.1).tolist() == group.tolist()

@@ -90,8 +90,10 @@ def ensure_run(work: Path, noise: str, layout: int, args: argparse.Namespace) ->
 
 
 def train_config(args: argparse.Namespace) -> PipelineConfig:
-    """The fast preset with ``--pipeline-seed``; iteration overrides only for smoke runs."""
-    cfg = preset("fast").seeded(args.pipeline_seed)
+    """The fast preset with ``--pipeline-seed`` and the ``--set`` overrides (training reads
+    its ``reconstruct``, ``cache`` and ``affinity`` sections); iteration overrides only for
+    smoke runs."""
+    cfg = overridden(preset("fast").seeded(args.pipeline_seed), args.set)
     if args.reconstruct_iterations is not None:
         cfg = replace(
             cfg, reconstruct=replace(cfg.reconstruct, iterations=args.reconstruct_iterations)
@@ -436,7 +438,8 @@ def parser() -> argparse.ArgumentParser:
         nargs="*",
         default=[],
         metavar="KEY=JSON",
-        help="segmentation overrides for ablations, e.g. assign.complete=false scale=0.5 "
+        help="overrides for ablations (with --train also of training: reconstruct, cache, "
+        "affinity), e.g. assign.complete=false scale=0.5 "
         "assign.maps_from=clusters",
     )
     p.add_argument("--frames", type=int, default=40)

@@ -34,8 +34,28 @@ def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
         "(gaussians), or from the cluster maps through each cluster's class (clusters)",
     )
     group.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    add_surface_option(group)
     add_device_option(group)
     add_output_options(parser)
+
+
+def add_surface_option(parser: Any) -> None:
+    """``--surface-priors``: reconstruct discs centred on the observed depth."""
+    parser.add_argument(
+        "--surface-priors",
+        action="store_true",
+        help="reconstruct thin discs pulled onto the observed depth (surfaces within mm on "
+        "clean depth; held-out depth error grows): dcseg.reconstruct.config.SURFACE_PRIORS",
+    )
+
+
+def surface_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """The reconstruction overrides of ``--surface-priors`` (none without it)."""
+    if not getattr(args, "surface_priors", False):
+        return {}
+    from dcseg.reconstruct.config import SURFACE_PRIORS
+
+    return dict(SURFACE_PRIORS)
 
 
 def add_device_option(parser: Any) -> None:
@@ -61,7 +81,12 @@ def job_config(args: argparse.Namespace) -> tuple[PipelineConfig, CaptureOptions
         "seed": args.seed,
         "label_maps": args.label_maps,
     }
-    options = {"capture": capture_fields(args), "segment": segment, "budget": budget_fields(args)}
+    options = {
+        "capture": capture_fields(args),
+        "segment": segment,
+        "budget": budget_fields(args),
+        "reconstruct": surface_fields(args),
+    }
     return build(args.preset, options)
 
 

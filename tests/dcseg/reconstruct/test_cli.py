@@ -10,9 +10,11 @@ import pytest
 
 import dcseg.io.captures
 from dcseg.cli import main
+from dcseg.cli._pipeline import job_config
 from dcseg.config import BUDGET_PRESETS, CaptureOptions, FrameBudget
 from dcseg.io.captures.plan import CaptureMeta, plan_capture
 from dcseg.io.ply import read_gaussians_ply
+from dcseg.reconstruct.config import SURFACE_PRIORS
 from tests.dcseg.reconstruct.scene import make_capture
 
 
@@ -44,6 +46,7 @@ def test_reconstruct_writes_ply_and_report(
     assert report["psnr"] > 0 and report["depth_mae"] >= 0
     assert set(report["seconds"]) == {"read", "init", "train", "eval", "write"}
     assert report["config"]["iterations"] == 8 and report["seed"] == 1
+    assert report["config"]["centre_weight"] == 0.0  # surface priors are opt-in
     assert report["backend"] == "cpu"
     assert report["peak_memory_mb"] > 0 and "torch" in report["versions"]
     assert report["capture"]["size"] == [24, 18] and report["capture"]["factor"] == 1
@@ -56,3 +59,31 @@ def test_reconstruct_reports_input_errors(
     code = main(["reconstruct", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
     assert code == 1
     assert "missing" in capsys.readouterr().err
+
+
+def test_surface_priors_flag_sets_the_priors(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def fake_read_planned(path: Path, options: CaptureOptions, budget: FrameBudget):
+        capture = make_capture(4, 24, 18)
+        poses = np.stack([f.c2w for f in capture.frames])
+        return capture, plan_capture(CaptureMeta(capture.names, poses, (24, 18)), budget)
+
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", fake_read_planned)
+    out = tmp_path / "out"
+    argv = ["reconstruct", str(tmp_path), "--out", str(out), "--iterations", "4"]
+    assert main([*argv, "--surface-priors"]) == 0
+    config = json.loads((out / "reconstruction.json").read_text())["config"]
+    assert {k: config[k] for k in SURFACE_PRIORS} == SURFACE_PRIORS
+
+
+def test_run_flag_puts_the_priors_in_the_job_config() -> None:
+    from dcseg.cli import build_parser
+
+    run = ["run", "cap", "--out", "o", "--agnostic-masks", "a", "--semantic-masks", "s"]
+    run += ["--vocabulary", "v"]
+    cfg, _ = job_config(build_parser().parse_args([*run, "--surface-priors"]))
+    assert cfg.reconstruct.centre_weight == SURFACE_PRIORS["centre_weight"]
+    assert cfg.reconstruct.init_thickness == SURFACE_PRIORS["init_thickness"]
+    plain, _ = job_config(build_parser().parse_args(run))
+    assert plain.reconstruct.centre_weight == 0.0 and plain.reconstruct.init_thickness is None

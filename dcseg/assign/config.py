@@ -61,6 +61,13 @@ class AssignConfig:
         surface_max_tilt: ... and the step between their centroids lies in both planes: its
             |cosine| with either normal is at most this (0.3 = 17 degrees). Walls meeting at a
             corner fail both tests and stay two regions, as do a floor and a raised platform.
+        split_stuff_planes: split every stuff region into planes after merging: its
+            Gaussians' local normals are grouped by direction (``surface_min_normal_cosine``)
+            and each direction into connected pieces, so one cluster that wraps round a
+            corner gives two walls (:func:`dcseg.assign.instances.split_stuff_planes`).
+        plane_min_share: a normal direction must hold at least this share of its region's
+            Gaussians to become a plane of its own (smaller groups of normals, e.g. a
+            skirting board's edge, join their neighbours' plane).
         min_instance_gaussians: objects and stuff regions with fewer Gaussians are left out of
             the instance list (their Gaussians keep their class, instance -1).
         min_fragment_share: an object with fewer Gaussians than this share of the largest
@@ -101,6 +108,8 @@ class AssignConfig:
     stuff_classes: tuple[str, ...] = ("wall", "floor", "ceiling")
     surface_min_normal_cosine: float = 0.8
     surface_max_tilt: float = 0.3
+    split_stuff_planes: bool = True
+    plane_min_share: float = 0.1
     min_instance_gaussians: int = 20
     min_fragment_share: float = 0.15
     complete: bool = True
@@ -146,6 +155,8 @@ class AssignConfig:
         ):
             if not -1.0 <= cos <= 1.0:
                 raise ValueError(f"{name} must be in [-1, 1], got {cos}")
+        if not 0.0 < self.plane_min_share <= 1.0:
+            raise ValueError(f"plane_min_share must be in (0, 1], got {self.plane_min_share}")
         if not 0.0 <= self.min_fragment_share <= 1.0:
             raise ValueError(f"min_fragment_share must be in [0, 1], got {self.min_fragment_share}")
         if self.evidence_weight < 0:

@@ -32,9 +32,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.cluster.hierarchy import DisjointSet
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from dcseg.assign.config import AssignConfig
+from dcseg.geometry import local_axes
 
 
 @dataclass(frozen=True)
@@ -319,6 +322,8 @@ def object_instances(
     group = np.where(labels >= 0, roots[np.maximum(labels, 0)], -1) if k else labels.copy()
     own = (labels >= 0) & (semantic == (f.classes[np.maximum(labels, 0)] if k else -2))
     group = np.where((semantic >= 0) & own, group, -1)
+    if cfg.split_stuff_planes:
+        group = split_stuff_planes(xyz, group, semantic, stuff, radius, cfg)
     group = _drop_small(group, cfg.min_instance_gaussians)
     group = drop_fragments(group, semantic, stuff, cfg.min_fragment_share)
     group = _attach_loose(xyz, semantic, group, radius, cfg.neighbours)
@@ -333,6 +338,116 @@ def _drop_small(group: NDArray[np.int64], min_size: int) -> NDArray[np.int64]:
     _, inverse, sizes = np.unique(group[inside], return_inverse=True, return_counts=True)
     out = group.copy()
     out[inside] = np.where(sizes[inverse] >= min_size, group[inside], -1)
+    return out
+
+
+PLANE_NEIGHBOURS = 16
+"""Neighbours whose spread gives a stuff Gaussian's local normal (:func:`split_stuff_planes`)."""
+
+PLANE_CANDIDATES = 512
+"""Normals tried as a region's dominant plane direction per round (evenly spaced picks)."""
+
+
+def plane_labels(
+    normals: NDArray[np.float64], min_cosine: float, min_points: int
+) -> NDArray[np.int64]:
+    """Group unit normals (up to sign) by direction: ``[M]`` group per normal, -1 = none.
+
+    Each round takes the candidate normal that most remaining normals agree with
+    (|cosine| >= ``min_cosine``) and gives them a group, while such a group holds at least
+    ``min_points`` normals; the rest stay -1.
+    """
+    out = np.full(len(normals), -1, dtype=np.int64)
+    for label in range(len(normals)):
+        free = np.flatnonzero(out < 0)
+        if len(free) < min_points:
+            break
+        picks = free[np.linspace(0, len(free) - 1, min(PLANE_CANDIDATES, len(free))).astype(int)]
+        agree = np.abs(normals[picks] @ normals[free].T) >= min_cosine
+        best = int(agree.sum(axis=1).argmax())
+        if int(agree[best].sum()) < min_points:
+            break
+        out[free[agree[best]]] = label
+    return out
+
+
+def split_stuff_planes(
+    means: NDArray[np.float64],
+    group: NDArray[np.int64],
+    semantic: NDArray[np.int64],
+    stuff: NDArray[np.bool_],
+    radius: float,
+    cfg: AssignConfig,
+) -> NDArray[np.int64]:
+    """Stuff regions split into their planes: one cluster that wraps round a room's corner
+    holds two walls, which the cluster-level coplanar test cannot separate.
+
+    Per stuff region, the Gaussians' local normals (:data:`PLANE_NEIGHBOURS`) are grouped by
+    direction (:func:`plane_labels`, |cosine| >= ``surface_min_normal_cosine``; a direction
+    needs ``plane_min_share`` of the region); Gaussians of no direction (corners, noisy normals)
+    join the direction of their nearest grouped neighbour; each direction then splits into
+    connected pieces (centres within ``radius``), and pieces below ``plane_min_share`` of the
+    region join the piece nearest to them. A region with one direction stays whole unless it
+    falls apart into large pieces.
+    """
+    out = group.copy()
+    next_key = int(group.max(initial=-1)) + 1
+    for key in np.unique(group[group >= 0]):
+        rows = np.flatnonzero(group == key)
+        cls = semantic[rows[0]]
+        if not (0 <= cls < len(stuff) and stuff[cls]) or len(rows) <= PLANE_NEIGHBOURS:
+            continue
+        pieces = _plane_pieces(means[rows], radius, cfg)
+        for piece in range(1, int(pieces.max(initial=0)) + 1):
+            out[rows[pieces == piece]] = next_key
+            next_key += 1
+    return out
+
+
+def _plane_pieces(
+    points: NDArray[np.float64], radius: float, cfg: AssignConfig
+) -> NDArray[np.int64]:
+    """``[M]`` piece per point of one stuff region (0 = the first piece)."""
+    _, vectors = local_axes(points, PLANE_NEIGHBOURS)
+    min_points = max(int(np.ceil(cfg.plane_min_share * len(points))), 1)
+    direction = plane_labels(vectors[:, :, 0], cfg.surface_min_normal_cosine, min_points)
+    placed = np.flatnonzero(direction >= 0)
+    if len(placed) == 0:
+        return np.zeros(len(points), dtype=np.int64)
+    loose = np.flatnonzero(direction < 0)
+    if len(loose):
+        _, nearest = cKDTree(points[placed]).query(points[loose])
+        direction[loose] = direction[placed[nearest]]
+    pieces = np.zeros(len(points), dtype=np.int64)
+    offset = 0
+    for d in range(int(direction.max()) + 1):
+        rows = np.flatnonzero(direction == d)
+        pairs = cKDTree(points[rows]).query_pairs(radius, output_type="ndarray")
+        graph = coo_matrix(
+            (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(rows), len(rows))
+        )
+        n, labels = connected_components(graph, directed=False)
+        pieces[rows] = offset + labels
+        offset += n
+    return _absorb_small(points, pieces, min_points)
+
+
+def _absorb_small(
+    points: NDArray[np.float64], pieces: NDArray[np.int64], min_points: int
+) -> NDArray[np.int64]:
+    """Pieces with fewer than ``min_points`` points join the piece of their nearest point in a
+    large one (sparse walls fall into specks at the contact radius); numbered ``0..P-1``."""
+    sizes = np.bincount(pieces)
+    large = sizes[pieces] >= min_points
+    if not large.any():
+        return np.zeros(len(pieces), dtype=np.int64)
+    small = np.flatnonzero(~large)
+    if len(small):
+        kept = np.flatnonzero(large)
+        _, nearest = cKDTree(points[kept]).query(points[small])
+        pieces = pieces.copy()
+        pieces[small] = pieces[kept[nearest]]
+    out: NDArray[np.int64] = np.unique(pieces, return_inverse=True)[1].reshape(-1)
     return out
 
 

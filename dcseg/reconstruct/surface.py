@@ -16,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from torch import Tensor
 
+from dcseg.geometry import local_axes
 from dcseg.render import Camera
 
 NORMAL_NEIGHBOURS = 10
@@ -38,9 +38,7 @@ def disc_frames(points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArr
         quats = np.zeros((m, 4))
         quats[:, 0] = 1.0
         return quats, np.ones((m, 3))
-    _, index = cKDTree(points).query(points, k=NORMAL_NEIGHBOURS)
-    local = points[index] - points[index].mean(axis=1, keepdims=True)
-    values, vectors = np.linalg.eigh(np.einsum("mki,mkj->mij", local, local) / NORMAL_NEIGHBOURS)
+    values, vectors = local_axes(points, NORMAL_NEIGHBOURS)
     axes = vectors[:, :, ::-1].copy()  # largest spread first, the normal last
     flip = np.linalg.det(axes) < 0
     axes[flip, :, 2] *= -1.0  # a proper rotation

@@ -15,6 +15,7 @@ from dcseg.assign.instances import (
     cluster_contacts,
     drop_fragments,
     object_instances,
+    plane_labels,
 )
 
 SPACING = 0.02
@@ -172,8 +173,54 @@ def test_a_raised_platform_is_not_the_floor() -> None:
     low, high = patch(0, 0.5, 0, 0.5), patch(0.5, 1.0, 0, 0.5, z=0.2)
     bridge = patch(0.48, 0.52, 0, 0.5, z=0.1)  # they touch through a few Gaussians
     parts = [(low, 0), (np.concatenate([high, bridge]), 1)]
-    result, _, _ = build(parts, [FLOOR, FLOOR], [unit(1, 0, 0)] * 2)
-    assert result.n_instances == 2
+    result, labels, _ = build(parts, [FLOOR, FLOOR], [unit(1, 0, 0)] * 2)
+    low_ids, high_ids = set(result.ids[: len(low)]), set(result.ids[len(low) : -len(bridge)])
+    assert len(low_ids) == len(high_ids) == 1 and low_ids != high_ids and -1 not in low_ids
+    # the bridge lies 10 cm from both planes: the plane split leaves it a region of its own
+    assert set(result.ids[-len(bridge) :]).isdisjoint(low_ids | high_ids)
+
+
+def _corner(noise: float = 0.0) -> NDArray[np.float64]:
+    """One wall along y = 0 and one along x = 0, meeting at the z axis, as one point set."""
+    flat = patch(0, 0.8, 0, 0.6)
+    wall_x = np.stack([flat[:, 0] + SPACING, np.zeros(len(flat)), flat[:, 1]], axis=1)
+    wall_y = np.stack([np.zeros(len(flat)), flat[:, 0] + SPACING, flat[:, 1]], axis=1)
+    points = np.concatenate([wall_x, wall_y])
+    return points + np.random.default_rng(0).normal(0.0, noise, points.shape)
+
+
+def test_one_cluster_round_a_corner_is_two_walls() -> None:
+    """A single wall cluster that wraps round a corner: the coplanar test never sees two
+    clusters, the plane split gives two regions, one per wall; off, it stays one."""
+    points = _corner()
+    half = len(points) // 2
+    split, _, _ = build([(points, 0)], [WALL], [unit(1, 0, 0)])
+    assert split.n_instances == 2
+    first, second = np.bincount(split.ids[:half]).argmax(), np.bincount(split.ids[half:]).argmax()
+    assert first != second
+    assert np.mean(split.ids[:half] == first) > 0.95  # corner Gaussians may go either way
+    assert np.mean(split.ids[half:] == second) > 0.95
+    whole, _, _ = build(
+        [(points, 0)], [WALL], [unit(1, 0, 0)], AssignConfig(split_stuff_planes=False)
+    )
+    assert whole.n_instances == 1
+
+
+def test_a_noisy_floor_stays_one_region_and_objects_are_never_split() -> None:
+    floor = patch(0, 1.2, 0, 1.2)
+    floor[:, 2] += np.random.default_rng(1).normal(0.0, 0.004, len(floor))
+    result, _, _ = build([(floor, 0)], [FLOOR], [unit(1, 0, 0)])
+    assert result.n_instances == 1
+    duck, _, _ = build([(_corner(), 0)], [DUCK], [unit(1, 0, 0)])
+    assert duck.n_instances == 1
+
+
+def test_plane_labels_group_normals_up_to_sign() -> None:
+    normals = np.array([[0, 0, 1], [0, 0, -1], [0.1, 0, 0.995], [1, 0, 0], [-1, 0, 0], [0, 1, 0]])
+    labels = plane_labels(normals.astype(np.float64), 0.8, 2)
+    assert labels[0] == labels[1] == labels[2] >= 0
+    assert labels[3] == labels[4] >= 0 and labels[3] != labels[0]
+    assert labels[5] == -1  # a direction with fewer than 2 normals
 
 
 def test_a_loose_patch_far_smaller_than_the_objects_of_its_class_dissolves() -> None:

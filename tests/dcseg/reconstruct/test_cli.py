@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -18,20 +19,25 @@ from dcseg.reconstruct.config import SURFACE_PRIORS
 from tests.dcseg.reconstruct.scene import make_capture
 
 
-def test_reconstruct_writes_ply_and_report(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
-    seen: list[CaptureOptions] = []
-    budgets: list[FrameBudget] = []
+def planned_reader(seen: list[CaptureOptions], budgets: list[FrameBudget]) -> Any:
+    """A stand-in for ``read_planned``: a 5-view analytic capture; records its arguments."""
 
-    def fake_read_planned(path: Path, options: CaptureOptions, budget: FrameBudget):
+    def fake_read_planned(path: Path, options: CaptureOptions, budget: FrameBudget) -> Any:
         seen.append(options)
         budgets.append(budget)
         capture = make_capture(5, 24, 18)
         poses = np.stack([f.c2w for f in capture.frames])
         return capture, plan_capture(CaptureMeta(capture.names, poses, (24, 18)), budget)
 
-    monkeypatch.setattr(dcseg.io.captures, "read_planned", fake_read_planned)
+    return fake_read_planned
+
+
+def test_reconstruct_writes_ply_and_report(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    seen: list[CaptureOptions] = []
+    budgets: list[FrameBudget] = []
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", planned_reader(seen, budgets))
     out = tmp_path / "out"
     argv = ["reconstruct", str(tmp_path), "--out", str(out), "--iterations", "8"]
     argv += ["--holdout", "3", "--seed", "1", "--intrinsics", "10,10,5,5", "--stride", "2"]
@@ -64,12 +70,7 @@ def test_reconstruct_reports_input_errors(
 def test_surface_priors_flag_sets_the_priors(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    def fake_read_planned(path: Path, options: CaptureOptions, budget: FrameBudget):
-        capture = make_capture(4, 24, 18)
-        poses = np.stack([f.c2w for f in capture.frames])
-        return capture, plan_capture(CaptureMeta(capture.names, poses, (24, 18)), budget)
-
-    monkeypatch.setattr(dcseg.io.captures, "read_planned", fake_read_planned)
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", planned_reader([], []))
     out = tmp_path / "out"
     argv = ["reconstruct", str(tmp_path), "--out", str(out), "--iterations", "4"]
     assert main([*argv, "--surface-priors"]) == 0

@@ -344,8 +344,11 @@ def _drop_small(group: NDArray[np.int64], min_size: int) -> NDArray[np.int64]:
 PLANE_NEIGHBOURS = 16
 """Neighbours whose spread gives a stuff Gaussian's local normal (:func:`split_stuff_planes`)."""
 
-PLANE_CANDIDATES = 512
+PLANE_CANDIDATES = 256
 """Normals tried as a region's dominant plane direction per round (evenly spaced picks)."""
+
+PLANE_VOTERS = 4096
+"""Normals (evenly spaced) whose agreement ranks the candidates of a round."""
 
 
 def plane_labels(
@@ -354,7 +357,8 @@ def plane_labels(
     """Group unit normals (up to sign) by direction: ``[M]`` group per normal, -1 = none.
 
     Each round takes the candidate normal that most remaining normals agree with
-    (|cosine| >= ``min_cosine``) and gives them a group, while such a group holds at least
+    (|cosine| >= ``min_cosine``; counted on :data:`PLANE_VOTERS` of them) and gives the
+    agreeing normals a group, while such a group holds at least
     ``min_points`` normals; the rest stay -1.
     """
     out = np.full(len(normals), -1, dtype=np.int64)
@@ -362,13 +366,20 @@ def plane_labels(
         free = np.flatnonzero(out < 0)
         if len(free) < min_points:
             break
-        picks = free[np.linspace(0, len(free) - 1, min(PLANE_CANDIDATES, len(free))).astype(int)]
-        agree = np.abs(normals[picks] @ normals[free].T) >= min_cosine
-        best = int(agree.sum(axis=1).argmax())
-        if int(agree[best].sum()) < min_points:
+        picks = free[_spaced(len(free), PLANE_CANDIDATES)]
+        voters = free[_spaced(len(free), PLANE_VOTERS)]
+        votes = (np.abs(normals[picks] @ normals[voters].T) >= min_cosine).sum(axis=1)
+        best = normals[picks[int(votes.argmax())]]
+        members = free[np.abs(normals[free] @ best) >= min_cosine]
+        if len(members) < min_points:
             break
-        out[free[agree[best]]] = label
+        out[members] = label
     return out
+
+
+def _spaced(n: int, most: int) -> NDArray[np.intp]:
+    """At most ``most`` evenly spaced indices into ``n`` items."""
+    return np.linspace(0, n - 1, min(most, n)).astype(np.intp)
 
 
 def split_stuff_planes(

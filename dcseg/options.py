@@ -25,6 +25,7 @@ from pydantic import (
     ConfigDict,
     Field,
     PlainValidator,
+    StrictBool,
     ValidationError,
     WithJsonSchema,
     create_model,
@@ -130,6 +131,8 @@ def _field_type(
     base = next((a for a in args if a is not type(None)), hint) if args else hint
     if name in choices:
         inner: Any = Literal[choices[name]]  # type: ignore[valid-type]
+    elif base is bool:
+        inner = StrictBool
     elif base in (int, float):
         low, high = bounds[name]
         kind: Any = int if base is int else float

@@ -44,8 +44,9 @@ def add_surface_option(parser: Any) -> None:
     parser.add_argument(
         "--surface-priors",
         action="store_true",
-        help="reconstruct thin discs pulled onto the observed depth (surfaces within mm on "
-        "clean depth; held-out depth error grows): dcseg.reconstruct.config.SURFACE_PRIORS",
+        help="reconstruct thin discs pulled onto the observed depth, rendering the depth of "
+        "their planes (surfaces within mm on clean depth): "
+        "dcseg.reconstruct.config.SURFACE_PRIORS",
     )
 
 

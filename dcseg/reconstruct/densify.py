@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.render.planar import quat_to_rotmat
 
 Params = dict[str, Tensor]
 """Leaf tensors by name: means, quats, log_scales, opacity_logits, sh_dc, sh_rest."""
@@ -80,18 +81,6 @@ def view_space_grad_norm(
     norms = torch.sqrt(gx * gx + gy * gy)
     visible = (z > 0.01) & (means_grad.abs().sum(dim=1) > 0)
     return norms, visible
-
-
-def quat_to_rotmat(quats: Tensor) -> Tensor:
-    """``[N, 3, 3]`` rotation matrices of (not necessarily unit) quaternions ``wxyz [N, 4]``."""
-    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ]  # fmt: skip
-    return torch.stack(rows, dim=-1).reshape(-1, 3, 3)
 
 
 def _rebuild(

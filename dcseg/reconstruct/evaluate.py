@@ -47,11 +47,11 @@ class Metrics:
 
 
 def evaluate_view(
-    gaussians: Gaussians, view: View, degree: int, backend: str | None
+    gaussians: Gaussians, view: View, degree: int, backend: str | None, *, planar: bool = False
 ) -> ViewMetrics:
-    """Render ``view`` and compare with its colour and valid depth."""
+    """Render ``view`` and compare with its colour and valid depth (``planar``: ray-plane)."""
     with torch.no_grad():
-        out = render_view(gaussians, view.camera, degree, backend)
+        out = render_view(gaussians, view.camera, degree, backend, planar=planar)
         valid = view.depth > 0
         count = int(valid.sum())
         error = (out.depth[valid] - view.depth[valid]).abs().mean() if count else None
@@ -59,9 +59,17 @@ def evaluate_view(
     return ViewMetrics(view.name, psnr(out.values, view.rgb), mae, count)
 
 
-def evaluate(gaussians: Gaussians, views: Sequence[View], backend: str | None = None) -> Metrics:
-    """Metrics of ``gaussians`` on ``views`` at the Gaussians' full SH degree."""
-    per_view = tuple(evaluate_view(gaussians, v, gaussians.sh_degree, backend) for v in views)
+def evaluate(
+    gaussians: Gaussians,
+    views: Sequence[View],
+    backend: str | None = None,
+    *,
+    planar: bool = False,
+) -> Metrics:
+    """Metrics of ``gaussians`` on ``views`` at the Gaussians' full SH degree; ``planar``: depth
+    rendered as each flat Gaussian's ray-plane depth, as the reconstruction trained it."""
+    degree = gaussians.sh_degree
+    per_view = tuple(evaluate_view(gaussians, v, degree, backend, planar=planar) for v in views)
     pixels = sum(v.depth_pixels for v in per_view)
     weighted = sum(v.depth_mae * v.depth_pixels for v in per_view if v.depth_pixels)
     mean_psnr = sum(v.psnr for v in per_view) / len(per_view) if per_view else math.nan

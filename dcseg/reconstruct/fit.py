@@ -24,7 +24,7 @@ from dcseg.reconstruct.losses import depth_l1, rgb_loss
 from dcseg.reconstruct.sh import eval_sh
 from dcseg.reconstruct.surface import centre_depth_loss, thickness_loss
 from dcseg.reconstruct.views import View, random_crop
-from dcseg.render import Camera, RenderOutput, render
+from dcseg.render import Camera, RenderOutput, render, render_planar
 
 log = logging.getLogger(__name__)
 
@@ -100,10 +100,18 @@ def view_colours(gaussians: Gaussians, camera: Camera, degree: int) -> Tensor:
 
 
 def render_view(
-    gaussians: Gaussians, camera: Camera, degree: int, backend: str | None
+    gaussians: Gaussians,
+    camera: Camera,
+    degree: int,
+    backend: str | None,
+    *,
+    planar: bool = False,
 ) -> RenderOutput:
-    """Render colour, alpha and expected depth of ``camera`` (black background)."""
+    """Render colour, alpha and expected depth of ``camera`` (black background); ``planar``:
+    each flat Gaussian's ray-plane depth (:func:`dcseg.render.render_planar`)."""
     colours = view_colours(gaussians, camera, degree)
+    if planar:
+        return render_planar(gaussians, colours, camera, backend=backend)
     return render(gaussians, colours, camera, backend=backend)
 
 
@@ -140,7 +148,9 @@ class _Trainer:
             if group["name"] == "means":
                 group["lr"] = means_lr(it, cfg, self.extent)
         degree = min(cfg.sh_degree, it // cfg.sh_degree_interval)
-        out = render_view(from_params(self.params), view.camera, degree, cfg.backend)
+        out = render_view(
+            from_params(self.params), view.camera, degree, cfg.backend, planar=cfg.planar_depth
+        )
         loss = step_loss(out, view, cfg)
         torch.autograd.backward(loss)
         if it < cfg.densify_until:

@@ -84,7 +84,8 @@ def fit_gaussians(
     seconds["train"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    metrics = evaluate(fitted.gaussians, [make_view(f, 1, device) for f in test], cfg.backend)
+    held_out = [make_view(f, 1, device) for f in test]
+    metrics = evaluate(fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth)
     seconds["eval"] = time.perf_counter() - start
     log.info("held-out PSNR %.2f dB, depth MAE %.4f m", metrics.psnr, metrics.depth_mae)
     return Reconstruction(

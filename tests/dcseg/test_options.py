@@ -4,6 +4,7 @@ the same configs for the CLI, the API and the worker, precise errors."""
 from __future__ import annotations
 
 import dataclasses
+import typing
 from pathlib import Path
 
 import pytest
@@ -38,8 +39,18 @@ from dcseg.sizes import SCALED, SceneSize, resolve
     ],
 )
 def test_every_overridable_field_is_bounded_or_a_choice(stage, bounds, choices):
+    hints = typing.get_type_hints(stage)
+    switches = {name for name, hint in hints.items() if hint is bool}
     names = {f.name for f in dataclasses.fields(stage)} - set(NOT_OVERRIDABLE)
-    assert names == set(bounds) | set(choices)
+    assert names == set(bounds) | set(choices) | switches
+
+
+def test_a_switch_takes_only_a_json_boolean():
+    options = parse_options({"reconstruct": {"planar_depth": True}})
+    built, _ = build_config("fast", options)
+    assert built.reconstruct.planar_depth is True
+    with pytest.raises(InputError, match="planar_depth"):
+        parse_options({"reconstruct": {"planar_depth": "yes"}})
 
 
 @pytest.mark.parametrize("name", ["fast", "paper"])

@@ -86,5 +86,7 @@ def test_run_flag_puts_the_priors_in_the_job_config() -> None:
     cfg, _ = job_config(build_parser().parse_args([*run, "--surface-priors"]))
     assert cfg.reconstruct.centre_weight == SURFACE_PRIORS["centre_weight"]
     assert cfg.reconstruct.init_thickness == SURFACE_PRIORS["init_thickness"]
+    assert cfg.reconstruct.planar_depth is True
     plain, _ = job_config(build_parser().parse_args(run))
     assert plain.reconstruct.centre_weight == 0.0 and plain.reconstruct.init_thickness is None
+    assert plain.reconstruct.planar_depth is False

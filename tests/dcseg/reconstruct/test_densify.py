@@ -14,11 +14,11 @@ from dcseg.reconstruct.densify import (
     GradStats,
     densify_and_prune,
     prune,
-    quat_to_rotmat,
     reset_opacity,
     view_space_grad_norm,
 )
 from dcseg.reconstruct.fit import from_params, make_optimizer, to_params
+from dcseg.render.planar import quat_to_rotmat
 
 EXTENT = 1.0
 

@@ -97,9 +97,9 @@ def test_coarse_to_fine_switches_resolution(monkeypatch: pytest.MonkeyPatch) -> 
     sizes: list[tuple[int, int, float]] = []
     original = fit_module.render_view
 
-    def spy(gaussians, camera, degree, backend):  # type: ignore[no-untyped-def]
+    def spy(gaussians, camera, degree, backend, *, planar=False):  # type: ignore[no-untyped-def]
         sizes.append((camera.width, camera.height, round(float(camera.K[0, 0]), 3)))
-        return original(gaussians, camera, degree, backend)
+        return original(gaussians, camera, degree, backend, planar=planar)
 
     monkeypatch.setattr(fit_module, "render_view", spy)
     cfg = replace(TINY, iterations=6, train_downscale=2, full_res_from=4, densify_until=0)

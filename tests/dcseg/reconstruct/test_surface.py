@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 import torch
 
+from dcseg.gaussians import Gaussians
 from dcseg.reconstruct.config import FAST, ReconstructConfig
+from dcseg.reconstruct.evaluate import evaluate
 from dcseg.reconstruct.fit import optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
 from dcseg.reconstruct.surface import centre_depth_loss, disc_frames, thickness_loss
@@ -100,6 +102,14 @@ PRIORS: dict[str, Any] = {"init_thickness": 0.1, "thickness_weight": 1.0, "centr
 def _fit_from_displaced(cfg: ReconstructConfig) -> tuple[float, float]:
     """Median surface distance of the opaque centres and median smallest scale after a fit that
     starts with every centre displaced ~2 cm off the analytic scene's surfaces."""
+    fitted = _fitted_from_displaced(cfg)
+    opaque = fitted.opacities() > 0.1
+    distance = surface_distance(fitted.means[opaque].double().numpy())
+    thickness = fitted.log_scales.min(dim=1).values.exp()
+    return float(np.median(distance)), float(thickness.median())
+
+
+def _fitted_from_displaced(cfg: ReconstructConfig) -> Gaussians:
     capture = make_capture(4, 32, 24)
     frames = capture.frames
     extent = scene_extent(frames)
@@ -108,20 +118,27 @@ def _fit_from_displaced(cfg: ReconstructConfig) -> tuple[float, float]:
     offset = 0.02 * torch.randn(init.means.shape, generator=generator)
     init = replace(init, means=init.means + offset)
     views = [make_view(f) for f in frames]
-    fitted = optimise(init, views, cfg, extent).gaussians
-    opaque = fitted.opacities() > 0.1
-    distance = surface_distance(fitted.means[opaque].double().numpy())
-    thickness = fitted.log_scales.min(dim=1).values.exp()
-    return float(np.median(distance)), float(thickness.median())
+    return optimise(init, views, cfg, extent).gaussians
+
+
+SMALL = replace(
+    FAST, iterations=60, train_downscale=1, full_res_from=None, init_pixel_stride=1,
+    densify_until=0, means_lr_init=2e-3, means_lr_final=2e-3, max_init_points=3000,
+)  # fmt: skip
 
 
 def test_surface_priors_pull_centres_onto_the_surfaces_and_flatten_them() -> None:
-    base = replace(
-        FAST, iterations=60, train_downscale=1, full_res_from=None, init_pixel_stride=1,
-        densify_until=0, means_lr_init=2e-3, means_lr_final=2e-3, max_init_points=3000,
-    )  # fmt: skip
+    base = SMALL
     plain = _fit_from_displaced(base)
     priors = _fit_from_displaced(replace(base, **PRIORS))
     assert priors[0] < 0.5 * plain[0], (priors, plain)
     assert priors[1] < 0.2 * plain[1], (priors, plain)
     assert math.isfinite(priors[0])
+
+
+def test_planar_depth_of_flat_gaussians_follows_the_slanted_floor() -> None:
+    fitted = _fitted_from_displaced(replace(SMALL, **PRIORS, planar_depth=True))
+    views = [make_view(f) for f in make_capture(4, 32, 24).frames]
+    planar = evaluate(fitted, views, "cpu", planar=True).depth_mae
+    centre = evaluate(fitted, views, "cpu").depth_mae
+    assert planar < 0.8 * centre, (planar, centre)

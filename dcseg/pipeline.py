@@ -63,7 +63,7 @@ class Labels:
     """
 
     semantic_ids: NDArray[np.int64]
-    label_maps: dict[str, NDArray[np.int64]]
+    label_maps: dict[str, NDArray[np.int32]]
 
 
 @dataclass(frozen=True)
@@ -85,8 +85,8 @@ class Segmentation:
     assignment: Assignment
     instances: Instances
     semantic_ids: NDArray[np.int64]
-    cluster_maps: dict[str, NDArray[np.int64]]
-    label_maps: dict[str, NDArray[np.int64]]
+    cluster_maps: dict[str, NDArray[np.int32]]
+    label_maps: dict[str, NDArray[np.int32]]
 
     @property
     def n_clusters(self) -> int:
@@ -263,7 +263,9 @@ def segment_scene(
     else:
         if refine:
             maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, "refine")
-        label_maps = {name: label_map(ids, assignment.labels) for name, ids in maps.items()}
+        label_maps = {
+            name: label_map(ids, assignment.labels).astype(np.int32) for name, ids in maps.items()
+        }
     return Segmentation(clustering, assignment, instances, semantic_ids, maps, label_maps)
 
 
@@ -323,7 +325,7 @@ def _cluster_maps(
     cfg: PipelineConfig,
     on_progress: Progress,
     stage: str = "masks",
-) -> dict[str, NDArray[np.int64]]:
+) -> dict[str, NDArray[np.int32]]:
     maps = {}
     for i, view in enumerate(views):
         maps[view.name] = cluster_map(view.blend, cluster_labels, cfg.masks)
@@ -334,11 +336,11 @@ def _cluster_maps(
 def _final_maps(
     views: Sequence[ViewState],
     cluster_labels: NDArray[np.int64] | None,
-    maps: dict[str, NDArray[np.int64]],
+    maps: dict[str, NDArray[np.int32]],
     semantic_ids: NDArray[np.int64],
     cfg: PipelineConfig,
     on_progress: Progress,
-) -> tuple[dict[str, NDArray[np.int64]], dict[str, NDArray[np.int64]]]:
+) -> tuple[dict[str, NDArray[np.int32]], dict[str, NDArray[np.int32]]]:
     """Cluster maps (rendered again when ``cluster_labels`` is given, else ``maps``) and label
     maps rendered from the Gaussians' final classes, in one pass over the views' weights.
 

@@ -237,7 +237,7 @@ def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = 
         semantic_ids = np.asarray(vertex["semantic_id"], dtype=np.int64)
     except (OSError, ValueError, KeyError) as error:
         raise InputError.single(str(path), f"cannot read semantic_id: {error}") from None
-    maps = {n: read_image(run / "labels" / f"{n}.png").astype(np.int64) - 1 for n in names}
+    maps = {n: read_image(run / "labels" / f"{n}.png").astype(np.int32) - 1 for n in names}
     if size is not None:
         maps = {n: resize_nearest(m, size) for n, m in maps.items()}
     return Labels(semantic_ids, maps)

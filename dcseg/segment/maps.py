@@ -15,7 +15,7 @@ from dcseg.segment.config import MaskConfig
 
 def cluster_map(
     blend: BlendWeights, cluster_labels: NDArray[np.integer[Any]], cfg: MaskConfig
-) -> NDArray[np.int64]:
+) -> NDArray[np.int32]:
     """One view's instance map: the dominant cluster per pixel, cleaned in 2D.
 
     Args:
@@ -24,16 +24,17 @@ def cluster_map(
         cfg: the stage's parameters.
 
     Returns:
-        ``[H, W]`` int64 cluster per pixel, -1 = none.
+        ``[H, W]`` int32 cluster per pixel, -1 = none (int32: a run holds one map per view
+        and kind, 1.2 MB instead of 2.5 MB at 640x480).
 
     Example:
         >>> ids = cluster_map(blend, clustering.labels, MaskConfig())  # doctest: +SKIP
     """
     groups = torch.from_numpy(np.array(cluster_labels, dtype=np.int64))
     dominant = blend.dominant_group(groups, cfg.min_weight).cpu().numpy()
-    cleaned: NDArray[np.int64] = clean_cluster_map(
+    cleaned: NDArray[np.int32] = clean_cluster_map(
         dominant, cfg.min_area(blend.width, blend.height)
-    ).astype(np.int64)
+    ).astype(np.int32, copy=False)
     return cleaned
 
 

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from dcseg.reconstruct.config import ReconstructConfig
-from dcseg.render.planar import quat_to_rotmat
+from dcseg.render.projection import quat_to_rotmat
 
 Params = dict[str, Tensor]
 """Leaf tensors by name: means, quats, log_scales, opacity_logits, sh_dc, sh_rest."""

@@ -24,23 +24,12 @@ from torch import Tensor
 from dcseg.gaussians import Gaussians
 from dcseg.render.api import render
 from dcseg.render.camera import Camera, RenderOutput
+from dcseg.render.projection import quat_to_rotmat
 
 MAX_TILT = 5.0
 """Largest ``tan`` of a plane's angle to the image plane (about 79 degrees); steeper is capped."""
 MIN_INVERSE_DEPTH = 1e-3
 """Floor of the blended inverse depth (1/m): a plane extrapolated past its horizon is 1 km away."""
-
-
-def quat_to_rotmat(quats: Tensor) -> Tensor:
-    """``[N, 3, 3]`` rotation matrices of (not necessarily unit) quaternions ``wxyz [N, 4]``."""
-    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ]  # fmt: skip
-    return torch.stack(rows, dim=-1).reshape(-1, 3, 3)
 
 
 def depth_planes(gaussians: Gaussians, camera: Camera) -> Tensor:
@@ -49,12 +38,10 @@ def depth_planes(gaussians: Gaussians, camera: Camera) -> Tensor:
     Differentiable with respect to means, quats and log scales. Gaussians behind the camera get
     zero slope; the rasterizer culls them anyway.
     """
-    dtype = gaussians.means.dtype
-    rot = camera.c2w[:3, :3].to(gaussians.means.device, dtype)
-    origin = camera.c2w[:3, 3].to(gaussians.means.device, dtype)
-    k = camera.K.to(gaussians.means.device, dtype)
-    fx, fy = k[0, 0], k[1, 1]
-    p = (gaussians.means - origin) @ rot  # camera frame
+    cam = camera.to(gaussians.means.device, gaussians.means.dtype)
+    rot = cam.c2w[:3, :3]
+    fx, fy = cam.K[0, 0], cam.K[1, 1]
+    p = (gaussians.means - cam.c2w[:3, 3]) @ rot  # camera frame
     z = p[:, 2].clamp_min(1e-6)
     axes = quat_to_rotmat(gaussians.quats)
     scales, order = gaussians.log_scales.exp().sort(dim=1)

@@ -113,24 +113,20 @@ def _project_raw(
     return means_c[:, 2], means2d, cov2d, torch.sigmoid(logits)
 
 
+def quat_to_rotmat(quats: Tensor) -> Tensor:
+    """``[N, 3, 3]`` rotation matrices of (not necessarily unit) quaternions ``wxyz [N, 4]``."""
+    w, x, y, z = F.normalize(quats, dim=-1).unbind(-1)
+    rows = [
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ]  # fmt: skip
+    return torch.stack(rows, dim=-1).reshape(-1, 3, 3)
+
+
 def scaled_rotations(quats: Tensor, log_scales: Tensor) -> Tensor:
     """``R S`` [N, 3, 3] from wxyz quaternions and log scales (covariance ``R S S^T R^T``)."""
-    w, x, y, z = F.normalize(quats, dim=-1).unbind(-1)
-    rot = torch.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(-1, 3, 3)
-    return rot * torch.exp(log_scales)[:, None, :]
+    return quat_to_rotmat(quats) * torch.exp(log_scales)[:, None, :]
 
 
 def _perspective(means_c: Tensor, cam: Camera) -> tuple[Tensor, Tensor]:

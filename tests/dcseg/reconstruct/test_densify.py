@@ -18,7 +18,7 @@ from dcseg.reconstruct.densify import (
     view_space_grad_norm,
 )
 from dcseg.reconstruct.fit import from_params, make_optimizer, to_params
-from dcseg.render.planar import quat_to_rotmat
+from dcseg.render.projection import quat_to_rotmat
 
 EXTENT = 1.0
 

@@ -37,6 +37,7 @@ def measure(run: Path, scene: Path) -> dict[str, Any]:
     elif alone.is_file():
         rec = json.loads(alone.read_text(encoding="utf-8"))
     row["psnr"], row["depth_mae"] = rec.get("psnr"), rec.get("depth_mae")
+    row["surface_depth_mae"] = rec.get("surface_depth_mae")
     return row
 
 

@@ -110,10 +110,11 @@ def run(args: argparse.Namespace) -> int:
         return 1
     log.info("%s", rules_summary(report["size_rules"]))
     log.info(
-        "wrote %s (%d Gaussians); held-out PSNR %s dB, depth MAE %s m",
+        "wrote %s (%d Gaussians); held-out PSNR %s dB, depth MAE %s m (surface depth %s m)",
         args.out / "scene.ply",
         report["gaussians"],
         report["psnr"],
         report["depth_mae"],
+        report["surface_depth_mae"],
     )
     return 0

@@ -1,4 +1,9 @@
-"""Held-out view metrics: PSNR on colour and mean absolute error on valid depth."""
+"""Held-out view metrics: PSNR on colour and mean absolute error on valid depth.
+
+Depth is scored twice: the rendered mean depth (what training fits) and the surface depth
+(:func:`dcseg.render.surface_depth.surface_depth`: the first surface along each ray, not a
+blend with what lies behind it), which is what a depth map of the scene should show.
+"""
 
 from __future__ import annotations
 
@@ -12,6 +17,7 @@ from dcseg.gaussians import Gaussians
 from dcseg.reconstruct.fit import render_view
 from dcseg.reconstruct.losses import psnr
 from dcseg.reconstruct.views import View
+from dcseg.render.surface_depth import surface_depth
 
 
 @dataclass(frozen=True)
@@ -22,12 +28,14 @@ class ViewMetrics:
         name: the frame's name.
         psnr: colour PSNR in dB (rendered colour clamped to [0, 1]).
         depth_mae: mean absolute depth error in metres over valid depth pixels (NaN if none).
+        surface_depth_mae: the same for the surface depth.
         depth_pixels: number of valid depth pixels.
     """
 
     name: str
     psnr: float
     depth_mae: float
+    surface_depth_mae: float
     depth_pixels: int
 
 
@@ -39,11 +47,13 @@ class Metrics:
         views: one entry per held-out view.
         psnr: mean PSNR over views (NaN without views).
         depth_mae: depth error averaged over all valid pixels of all views (NaN if none).
+        surface_depth_mae: the same for the surface depth.
     """
 
     views: tuple[ViewMetrics, ...]
     psnr: float
     depth_mae: float
+    surface_depth_mae: float
 
 
 def evaluate_view(
@@ -52,11 +62,18 @@ def evaluate_view(
     """Render ``view`` and compare with its colour and valid depth (``planar``: ray-plane)."""
     with torch.no_grad():
         out = render_view(gaussians, view.camera, degree, backend, planar=planar)
-        valid = view.depth > 0
-        count = int(valid.sum())
-        error = (out.depth[valid] - view.depth[valid]).abs().mean() if count else None
-    mae = math.nan if error is None else float(error)
-    return ViewMetrics(view.name, psnr(out.values, view.rgb), mae, count)
+    surface = surface_depth(gaussians, view.camera, planar=planar)
+    valid = view.depth > 0
+    mean_error = _mae(out.depth, view.depth, valid)
+    surface_error = _mae(surface.to(view.depth), view.depth, valid)
+    count = int(valid.sum())
+    return ViewMetrics(view.name, psnr(out.values, view.rgb), mean_error, surface_error, count)
+
+
+def _mae(depth: torch.Tensor, truth: torch.Tensor, valid: torch.Tensor) -> float:
+    if not bool(valid.any()):
+        return math.nan
+    return float((depth.to(truth)[valid] - truth[valid]).abs().mean())
 
 
 def evaluate(
@@ -71,6 +88,13 @@ def evaluate(
     degree = gaussians.sh_degree
     per_view = tuple(evaluate_view(gaussians, v, degree, backend, planar=planar) for v in views)
     pixels = sum(v.depth_pixels for v in per_view)
-    weighted = sum(v.depth_mae * v.depth_pixels for v in per_view if v.depth_pixels)
     mean_psnr = sum(v.psnr for v in per_view) / len(per_view) if per_view else math.nan
-    return Metrics(per_view, mean_psnr, weighted / pixels if pixels else math.nan)
+    mean = _pooled([(v.depth_mae, v.depth_pixels) for v in per_view], pixels)
+    surface = _pooled([(v.surface_depth_mae, v.depth_pixels) for v in per_view], pixels)
+    return Metrics(per_view, mean_psnr, mean, surface)
+
+
+def _pooled(errors: Sequence[tuple[float, int]], pixels: int) -> float:
+    """The per-view errors averaged over all valid pixels."""
+    weighted = sum(error * count for error, count in errors if count)
+    return weighted / pixels if pixels else math.nan

@@ -118,11 +118,13 @@ def _report(
     return {
         "psnr": _finite(metrics.psnr),
         "depth_mae": _finite(metrics.depth_mae),
+        "surface_depth_mae": _finite(metrics.surface_depth_mae),
         "views": [
             {
                 "name": v.name,
                 "psnr": _finite(v.psnr),
                 "depth_mae": _finite(v.depth_mae),
+                "surface_depth_mae": _finite(v.surface_depth_mae),
                 "depth_pixels": v.depth_pixels,
             }
             for v in metrics.views

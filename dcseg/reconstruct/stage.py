@@ -87,7 +87,10 @@ def fit_gaussians(
     held_out = [make_view(f, 1, device) for f in test]
     metrics = evaluate(fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth)
     seconds["eval"] = time.perf_counter() - start
-    log.info("held-out PSNR %.2f dB, depth MAE %.4f m", metrics.psnr, metrics.depth_mae)
+    log.info(
+        "held-out PSNR %.2f dB, depth MAE %.4f m (surface depth %.4f m)",
+        metrics.psnr, metrics.depth_mae, metrics.surface_depth_mae,
+    )  # fmt: skip
     return Reconstruction(
         gaussians=fitted.gaussians,
         metrics=metrics,

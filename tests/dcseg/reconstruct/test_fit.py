@@ -49,7 +49,9 @@ def test_metrics_are_finite(result: Reconstruction) -> None:
     (view,) = result.metrics.views
     assert math.isfinite(view.psnr) and view.psnr > 10.0
     assert math.isfinite(view.depth_mae) and view.depth_pixels > 0
+    assert math.isfinite(view.surface_depth_mae) and view.surface_depth_mae < 0.5
     assert result.metrics.psnr == view.psnr
+    assert result.metrics.surface_depth_mae == pytest.approx(view.surface_depth_mae)
     assert set(result.seconds) == {"init", "train", "eval"}
     g = result.gaussians
     assert len(g) > 0 and not g.means.requires_grad

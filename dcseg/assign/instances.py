@@ -16,6 +16,11 @@ with a documented threshold of :class:`~dcseg.assign.config.AssignConfig`:
    agree and each lies in the other's plane), so every connected surface is one region and
    walls meeting at a corner are two.
 
+4. **Near objects** (``merge_near``): objects of one (non-stuff) class whose nearest Gaussians
+   are within the contact radius and whose mean features agree (cosine >= ``near_min_cosine``)
+   are one object: pieces of a ball or a duck that touch only along a seam of a few Gaussians,
+   or not at all, which the cluster contacts of step 3 miss.
+
 Objects and regions with fewer than ``min_instance_gaussians`` Gaussians dissolve, and so do
 objects far smaller than the largest object of their class (``min_fragment_share`` of its
 size: a ball's loose patches next to two whole balls); their Gaussians, and
@@ -324,12 +329,70 @@ def object_instances(
     group = np.where((semantic >= 0) & own, group, -1)
     if cfg.split_stuff_planes:
         group = split_stuff_planes(xyz, group, semantic, stuff, radius, cfg)
+    if cfg.merge_near and k:
+        features = np.asarray(centers, dtype=np.float64)[np.maximum(labels, 0)]
+        group = merge_near_objects(xyz, group, semantic, stuff, features, radius, cfg)
     group = _drop_small(group, cfg.min_instance_gaussians)
     group = drop_fragments(group, semantic, stuff, cfg.min_fragment_share)
     group = _attach_loose(xyz, semantic, group, radius, cfg.neighbours)
     scores = cluster_scores[np.maximum(labels, 0)] if k else np.zeros(len(labels))
     scores = np.where(labels >= 0, scores, 0.0)
     return _number(group, semantic, scores, labels, k, cfg.min_instance_gaussians)
+
+
+def merge_near_objects(
+    means: NDArray[np.float64],
+    group: NDArray[np.int64],
+    semantic: NDArray[np.int64],
+    stuff: NDArray[np.bool_],
+    features: NDArray[np.float64],
+    radius: float,
+    cfg: AssignConfig,
+) -> NDArray[np.int64]:
+    """Same-class objects within ``radius`` of each other with agreeing features merge (step 4).
+
+    Args:
+        means: ``[N, 3]`` Gaussian centres.
+        group: ``[N]`` object key per Gaussian, -1 = none.
+        semantic: ``[N]`` class per Gaussian (a group's class is its first Gaussian's).
+        stuff: ``[C]`` True for stuff classes, which never merge here.
+        features: ``[N, D]`` feature per Gaussian (its cluster's centre).
+        radius: the contact radius: the largest gap between two objects that merge.
+        cfg: ``near_min_cosine``, the smallest cosine of the two objects' mean features.
+    """
+    keys = np.unique(group[group >= 0])
+    if len(keys) < 2:
+        return group
+    classes = np.array([semantic[np.argmax(group == key)] for key in keys], dtype=np.int64)
+    solid = np.array([not (0 <= c < len(stuff) and stuff[c]) for c in classes], dtype=bool)
+    mean = np.stack([features[group == key].mean(axis=0) for key in keys])
+    sets = DisjointSet(keys.tolist())
+    for i, j in _same_class_pairs(classes, solid):
+        cosine = float(_cosine(mean, np.array([i]), np.array([j]))[0])
+        if cosine >= cfg.near_min_cosine and _gap(means, group, keys[i], keys[j]) <= radius:
+            sets.merge(int(keys[i]), int(keys[j]))
+    out = group.copy()
+    inside = group >= 0
+    out[inside] = [sets[int(key)] for key in group[inside]]
+    return out
+
+
+def _same_class_pairs(
+    classes: NDArray[np.int64], solid: NDArray[np.bool_]
+) -> list[tuple[int, int]]:
+    """Index pairs ``i < j`` of non-stuff groups of one class."""
+    return [
+        (i, j)
+        for i in range(len(classes))
+        for j in range(i + 1, len(classes))
+        if solid[i] and classes[i] == classes[j]
+    ]
+
+
+def _gap(means: NDArray[np.float64], group: NDArray[np.int64], a: int, b: int) -> float:
+    """The smallest distance between a Gaussian of group ``a`` and one of group ``b``."""
+    distances, _ = cKDTree(means[group == a]).query(means[group == b], k=1)
+    return float(np.min(distances))
 
 
 def _drop_small(group: NDArray[np.int64], min_size: int) -> NDArray[np.int64]:

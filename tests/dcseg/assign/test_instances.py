@@ -78,8 +78,27 @@ def test_two_fragments_of_one_object_merge() -> None:
     assert merged.n_instances == 1
     assert np.all(merged.ids == 0) and merged.classes.tolist() == [DUCK]
     assert merged.of_cluster.tolist() == [0, 0]
-    apart, _, _ = build(parts, [DUCK, DUCK], centers, AssignConfig(merge_min_cosine=1.0))
+    off = AssignConfig(merge_min_cosine=1.0, merge_near=False)
+    apart, _, _ = build(parts, [DUCK, DUCK], centers, off)
     assert apart.n_instances == 2
+
+
+def test_near_pieces_with_agreeing_features_are_one_object() -> None:
+    """Two duck pieces 5 cm apart (within the contact radius, no contacts among the 4 nearest
+    neighbours): one object with ``merge_near``, two without it, with unlike features or when
+    farther apart than the radius."""
+    left = patch(0, 0.3, 0, 0.3)
+    near, far = patch(0.33, 0.63, 0, 0.3), patch(0.38, 0.68, 0, 0.3)
+    labels = np.repeat([0, 1], [len(left), len(near)])
+    assert len(cluster_contacts(np.concatenate([left, near]), labels, RADIUS, 4)[0]) == 0
+    alike, unlike = [unit(1, 0.3, 0), unit(1, 0, 0.3)], [unit(1, 0, 0), unit(-0.2, 1, 0)]
+    on = AssignConfig(neighbours=4, merge_near=True, near_min_cosine=0.3)
+    assert build([(left, 0), (near, 1)], [DUCK, DUCK], alike, on)[0].n_instances == 1
+    off = replace(on, merge_near=False)
+    assert build([(left, 0), (near, 1)], [DUCK, DUCK], alike, off)[0].n_instances == 2
+    assert build([(left, 0), (near, 1)], [DUCK, DUCK], unlike, on)[0].n_instances == 2
+    assert build([(left, 0), (far, 1)], [DUCK, DUCK], alike, on)[0].n_instances == 2
+    assert build([(left, 0), (near, 1)], [DUCK, MUG], alike, on)[0].n_instances == 2
 
 
 def test_touching_objects_of_different_class_or_features_stay_apart() -> None:
@@ -122,7 +141,8 @@ def test_stuff_is_one_region_per_connected_surface() -> None:
     assert result.of_cluster[0] != result.of_cluster[1]
     assert len(set(result.of_cluster[2:].tolist())) == 1
     assert len(set(result.ids[labels >= 2].tolist())) == 1
-    things, _, _ = build(parts, [DUCK, DUCK, MUG, MUG, MUG], centers)
+    unlike = [unit(1, 0, 0), unit(0, 1, 0), unit(0, 0, 1), unit(-1, 0.2, 0), unit(0.1, -1, 0.1)]
+    things, _, _ = build(parts, [DUCK, DUCK, MUG, MUG, MUG], unlike)
     assert things.n_instances == 5, "objects with unlike features do not merge"
 
 
@@ -149,6 +169,8 @@ def test_thresholds_are_validated() -> None:
         AssignConfig(merge_min_cosine=2.0)
     with pytest.raises(ValueError, match="contact_factor"):
         replace(AssignConfig(), contact_factor=0.0)
+    with pytest.raises(ValueError, match="near_min_cosine"):
+        AssignConfig(near_min_cosine=1.5)
     with pytest.raises(ValueError, match="min_instance_gaussians"):
         AssignConfig(min_instance_gaussians=-1)
 

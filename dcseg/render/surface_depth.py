@@ -19,6 +19,8 @@ With ``planar``, each Gaussian's depth is its own plane's along the pixel's ray
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
@@ -47,6 +49,9 @@ def surface_depth(
 ) -> Tensor:
     """``[H, W]`` float32 surface depth of ``camera`` (0 where nothing is rendered).
 
+    Memory: the view's blending weights (at most :data:`MAX_PER_PIXEL` per pixel) plus the
+    work of :data:`CHUNK_PIXELS` pixels at a time.
+
     Args:
         gaussians: the Gaussians (any device; computed on the CPU).
         camera: the view.
@@ -60,59 +65,95 @@ def surface_depth(
         raise ValueError(f"window must be >= 0, got {window}")
     g = gaussians.detach().to("cpu")
     with torch.no_grad():
-        blend = blend_weights(g, camera)
-        rows = blend.rows()
-        depth = _entry_depths(g, camera, planar, blend, rows)
-        first = first_reaching(blend, rows, threshold)
-        has = first < blend.nnz
-        median = torch.zeros(len(first), dtype=depth.dtype)
-        median[has] = depth[first[has]]
-        near = ((depth - median[rows]).abs() <= window) & has[rows]
-        out = _blend_near(blend, rows, near, depth, planar)
-    return out.float().reshape(blend.height, blend.width)
+        blend = blend_weights(g, camera, max_per_pixel=MAX_PER_PIXEL)
+        per_gaussian = _depth_terms(g, camera, planar)
+        pixels = blend.height * blend.width
+        out = torch.zeros(pixels, dtype=torch.float32)
+        for first in range(0, pixels, CHUNK_PIXELS):
+            chunk = _Chunk.of(blend, first, min(first + CHUNK_PIXELS, pixels))
+            depth = _entry_depths(per_gaussian, camera, planar, chunk)
+            out[first : first + chunk.pixels] = _chunk_depth(
+                chunk, depth, planar, threshold, window
+            )
+    return out.reshape(blend.height, blend.width)
 
 
-def first_reaching(blend: BlendWeights, rows: Tensor, threshold: float) -> Tensor:
-    """``[H*W]`` per pixel the first entry (front to back) at which the summed weight reaches
-    ``threshold`` of the pixel's total; ``blend.nnz`` for pixels without weight."""
-    weights = blend.weights.double()
-    pixels = blend.height * blend.width
-    total = torch.zeros(pixels, dtype=torch.float64).index_add_(0, rows, weights)
-    running = torch.cumsum(weights, 0)
-    starts = blend.offsets[:-1]
-    before = torch.where(starts > 0, running[(starts - 1).clamp_min(0)], 0.0)
-    reached = (running - before[rows] >= threshold * total[rows] - 1e-12) & (total[rows] > 0)
-    first = torch.full((pixels,), blend.nnz, dtype=torch.int64)
-    entry = torch.arange(blend.nnz)
-    return first.scatter_reduce_(0, rows[reached], entry[reached], reduce="amin")
+MAX_PER_PIXEL = 32
+"""Contributions kept per pixel (front-most first): the first surface lies among them."""
+CHUNK_PIXELS = 1 << 14
+"""Pixels whose contributions are worked on at once (bounds the float64 work arrays)."""
 
 
-def _entry_depths(
-    g: Gaussians, camera: Camera, planar: bool, blend: BlendWeights, rows: Tensor
-) -> Tensor:
-    """``[nnz]`` float64 depth of every stored contribution along its pixel's ray."""
-    cam = camera.to("cpu", torch.float64)
-    ids = blend.ids.long()
+@dataclass(frozen=True)
+class _Chunk:
+    """The contributions of pixels ``first .. first + pixels - 1`` of a view."""
+
+    first: int
+    pixels: int
+    width: int
+    rows: Tensor  # [E] pixel of each entry, relative to ``first``
+    ids: Tensor  # [E] int64 Gaussian ids
+    weights: Tensor  # [E] float64 blending weights
+
+    @classmethod
+    def of(cls, blend: BlendWeights, first: int, last: int) -> _Chunk:
+        start, end = int(blend.offsets[first]), int(blend.offsets[last])
+        counts = blend.offsets[first + 1 : last + 1] - blend.offsets[first:last]
+        rows = torch.repeat_interleave(torch.arange(last - first), counts)
+        ids, weights = blend.ids[start:end].long(), blend.weights[start:end].double()
+        return cls(first, last - first, blend.width, rows, ids, weights)
+
+
+def _depth_terms(g: Gaussians, camera: Camera, planar: bool) -> Tensor:
+    """Per Gaussian ``[N, 3]`` plane coefficients (planar) or ``[N, 1]`` centre depth."""
+    if planar:
+        return depth_planes(g, camera).double()
+    cam = camera.to("cpu", g.means.dtype)
+    return ((g.means - cam.c2w[:3, 3]) @ cam.c2w[:3, 2:3]).double()
+
+
+def _entry_depths(terms: Tensor, camera: Camera, planar: bool, chunk: _Chunk) -> Tensor:
+    """``[E]`` float64 depth of every contribution of the chunk along its pixel's ray."""
+    t = terms[chunk.ids]
     if not planar:
-        local = (g.means.double()[ids] - cam.c2w[:3, 3]) @ cam.c2w[:3, :3]
-        return local[:, 2]
-    planes = depth_planes(g, camera)[ids].double()
-    u = (rows % camera.width).double() - cam.K[0, 2]
-    v = (rows // camera.width).double() - cam.K[1, 2]
-    inverse = planes[:, 0] + planes[:, 1] * u + planes[:, 2] * v
-    return 1.0 / inverse.clamp_min(MIN_INVERSE_DEPTH)
+        return t[:, 0]
+    k = camera.K.double()
+    pixel = chunk.rows + chunk.first
+    u = (pixel % chunk.width).double() - k[0, 2]
+    v = (pixel // chunk.width).double() - k[1, 2]
+    return 1.0 / (t[:, 0] + t[:, 1] * u + t[:, 2] * v).clamp_min(MIN_INVERSE_DEPTH)
 
 
-def _blend_near(
-    blend: BlendWeights, rows: Tensor, near: Tensor, depth: Tensor, planar: bool
+def _chunk_depth(
+    chunk: _Chunk, depth: Tensor, planar: bool, threshold: float, window: float
 ) -> Tensor:
-    """``[H*W]`` weighted blend of the ``near`` entries' depths (inverse depth if planar)."""
-    pixels = blend.height * blend.width
-    w = blend.weights.double()[near]
-    at = rows[near]
+    """``[pixels]`` surface depth of the chunk's pixels (0 without any weight)."""
+    first = first_reaching(chunk.rows, chunk.weights, chunk.pixels, threshold)
+    has = first < len(depth)
+    median = torch.zeros(chunk.pixels, dtype=torch.float64)
+    median[has] = depth[first[has]]
+    near = ((depth - median[chunk.rows]).abs() <= window) & has[chunk.rows]
+    w, at = chunk.weights[near], chunk.rows[near]
     value = 1.0 / depth[near] if planar else depth[near]
-    weight = torch.zeros(pixels, dtype=torch.float64).index_add_(0, at, w)
-    summed = torch.zeros(pixels, dtype=torch.float64).index_add_(0, at, w * value)
+    weight = torch.zeros(chunk.pixels, dtype=torch.float64).index_add_(0, at, w)
+    summed = torch.zeros(chunk.pixels, dtype=torch.float64).index_add_(0, at, w * value)
     mean = summed / weight.clamp_min(1e-300)
     out = 1.0 / mean.clamp_min(1e-300) if planar else mean
-    return torch.where(weight > 0, out, 0.0)
+    return torch.where(weight > 0, out, 0.0).float()
+
+
+def first_reaching(rows: Tensor, weights: Tensor, pixels: int, threshold: float) -> Tensor:
+    """``[pixels]`` per pixel the first entry (front to back) at which its summed weight reaches
+    ``threshold`` of the pixel's total; ``len(rows)`` for pixels without weight.
+
+    ``rows [E]`` (sorted) gives each entry's pixel, ``weights [E]`` its blending weight.
+    """
+    total = torch.zeros(pixels, dtype=torch.float64).index_add_(0, rows, weights)
+    running = torch.cumsum(weights, 0)
+    before = torch.zeros(pixels, dtype=torch.float64)
+    starts = torch.searchsorted(rows, torch.arange(pixels))
+    before[starts > 0] = running[starts[starts > 0] - 1]
+    reached = (running - before[rows] >= threshold * total[rows] - 1e-12) & (total[rows] > 0)
+    first = torch.full((pixels,), len(rows), dtype=torch.int64)
+    entry = torch.arange(len(rows))
+    return first.scatter_reduce_(0, rows[reached], entry[reached], reduce="amin")

@@ -84,3 +84,13 @@ def test_the_threshold_and_window_are_checked() -> None:
         surface_depth(tilted_disc(0.0), camera(8, 6), threshold=0.0)
     with pytest.raises(ValueError, match="window must be"):
         surface_depth(tilted_disc(0.0), camera(8, 6), window=-1.0)
+
+
+def test_chunks_give_the_same_depth_as_one_pass(monkeypatch: pytest.MonkeyPatch) -> None:
+    import dcseg.render.surface_depth as module
+
+    cam = camera(40, 30)
+    scene = disc_before_wall()
+    whole = surface_depth(scene, cam, planar=True)
+    monkeypatch.setattr(module, "CHUNK_PIXELS", 37)  # chunks end mid-row
+    assert torch.equal(surface_depth(scene, cam, planar=True), whole)

@@ -360,20 +360,22 @@ def merge_near_objects(
         radius: the contact radius: the largest gap between two objects that merge.
         cfg: ``near_min_cosine``, the smallest cosine of the two objects' mean features.
     """
-    keys = np.unique(group[group >= 0])
+    inside = np.flatnonzero(group >= 0)
+    keys, first, inverse = np.unique(group[inside], return_index=True, return_inverse=True)
     if len(keys) < 2:
         return group
-    classes = np.array([semantic[np.argmax(group == key)] for key in keys], dtype=np.int64)
-    solid = np.array([not (0 <= c < len(stuff) and stuff[c]) for c in classes], dtype=bool)
-    mean = np.stack([features[group == key].mean(axis=0) for key in keys])
+    classes = semantic[inside[first]]
+    solid = ~((classes >= 0) & (classes < len(stuff)) & stuff[np.clip(classes, 0, len(stuff) - 1)])
+    mean = np.zeros((len(keys), features.shape[1]))
+    np.add.at(mean, inverse.reshape(-1), features[inside])  # sums: the cosine ignores scale
     sets = DisjointSet(keys.tolist())
     for i, j in _same_class_pairs(classes, solid):
         cosine = float(_cosine(mean, np.array([i]), np.array([j]))[0])
         if cosine >= cfg.near_min_cosine and _gap(means, group, keys[i], keys[j]) <= radius:
             sets.merge(int(keys[i]), int(keys[j]))
+    roots = np.array([sets[int(key)] for key in keys], dtype=np.int64)
     out = group.copy()
-    inside = group >= 0
-    out[inside] = [sets[int(key)] for key in group[inside]]
+    out[inside] = roots[inverse.reshape(-1)]
     return out
 
 

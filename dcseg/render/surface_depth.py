@@ -94,6 +94,7 @@ class _Chunk:
     pixels: int
     width: int
     rows: Tensor  # [E] pixel of each entry, relative to ``first``
+    starts: Tensor  # [pixels] first entry of each pixel
     ids: Tensor  # [E] int64 Gaussian ids
     weights: Tensor  # [E] float64 blending weights
 
@@ -102,8 +103,9 @@ class _Chunk:
         start, end = int(blend.offsets[first]), int(blend.offsets[last])
         counts = blend.offsets[first + 1 : last + 1] - blend.offsets[first:last]
         rows = torch.repeat_interleave(torch.arange(last - first), counts)
+        starts = blend.offsets[first:last] - start
         ids, weights = blend.ids[start:end].long(), blend.weights[start:end].double()
-        return cls(first, last - first, blend.width, rows, ids, weights)
+        return cls(first, last - first, blend.width, rows, starts, ids, weights)
 
 
 def _depth_terms(g: Gaussians, camera: Camera, planar: bool) -> Tensor:
@@ -130,7 +132,7 @@ def _chunk_depth(
     chunk: _Chunk, depth: Tensor, planar: bool, threshold: float, window: float
 ) -> Tensor:
     """``[pixels]`` surface depth of the chunk's pixels (0 without any weight)."""
-    first = first_reaching(chunk.rows, chunk.weights, chunk.pixels, threshold)
+    first = first_reaching(chunk.rows, chunk.starts, chunk.weights, threshold)
     has = first < len(depth)
     median = torch.zeros(chunk.pixels, dtype=torch.float64)
     median[has] = depth[first[has]]
@@ -144,16 +146,17 @@ def _chunk_depth(
     return torch.where(weight > 0, out, 0.0).float()
 
 
-def first_reaching(rows: Tensor, weights: Tensor, pixels: int, threshold: float) -> Tensor:
+def first_reaching(rows: Tensor, starts: Tensor, weights: Tensor, threshold: float) -> Tensor:
     """``[pixels]`` per pixel the first entry (front to back) at which its summed weight reaches
     ``threshold`` of the pixel's total; ``len(rows)`` for pixels without weight.
 
-    ``rows [E]`` (sorted) gives each entry's pixel, ``weights [E]`` its blending weight.
+    ``rows [E]`` (sorted) gives each entry's pixel, ``starts [pixels]`` each pixel's first
+    entry (CSR offsets), ``weights [E]`` the blending weights.
     """
+    pixels = len(starts)
     total = torch.zeros(pixels, dtype=torch.float64).index_add_(0, rows, weights)
     running = torch.cumsum(weights, 0)
     before = torch.zeros(pixels, dtype=torch.float64)
-    starts = torch.searchsorted(rows, torch.arange(pixels))
     before[starts > 0] = running[starts[starts > 0] - 1]
     reached = (running - before[rows] >= threshold * total[rows] - 1e-12) & (total[rows] > 0)
     first = torch.full((pixels,), len(rows), dtype=torch.int64)

@@ -2,6 +2,9 @@
 
     python scripts/viewer_screenshot.py runs/demo/run docs/viewer.png --hide-class wall
 
+The README's picture: ``python scripts/viewer_screenshot.py runs/demo/run docs/viewer-demo.png
+--mode class --hide-class wall --select 9 --size 1040x640``.
+
 Serves RUN like ``dcseg view``, opens it in headless Chromium (tests/dcseg/viewer/browser.py),
 hides the given classes, optionally selects an object (a click on its centroid) and writes the
 page.

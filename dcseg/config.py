@@ -170,6 +170,22 @@ class PipelineConfig:
         return asdict(self)
 
     @classmethod
+    def from_stored(cls, data: dict[str, Any]) -> tuple[PipelineConfig, list[str]]:
+        """Rebuild a config stored by an earlier dcseg (``run.json``): keys of
+        :data:`RETIRED_KEYS` are dropped (their stage's current behaviour applies) and listed
+        as ``"stage.key"`` in the second value; any other unknown key raises ``ValueError``.
+        """
+        kept, dropped = dict(data), []
+        for stage, retired in RETIRED_KEYS.items():
+            section = kept.get(stage)
+            if not isinstance(section, dict):
+                continue
+            gone = sorted(set(section) & set(retired))
+            kept[stage] = {k: v for k, v in section.items() if k not in retired}
+            dropped += [f"{stage}.{key}" for key in gone]
+        return cls.from_dict(kept), dropped
+
+    @classmethod
     def from_dict(cls, data: dict[str, Any]) -> PipelineConfig:
         """Rebuild from :meth:`to_dict` output; unknown keys raise ``ValueError``."""
         parts: dict[str, Any] = {}
@@ -204,6 +220,19 @@ def _build(stage: type[Any], value: Any, name: str) -> Any:
         raise ValueError(f"unknown keys in pipeline config {name!r}: {', '.join(unknown)}")
     kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
     return stage(**kwargs)
+
+
+RETIRED_KEYS: dict[str, dict[str, str]] = {
+    "assign": {
+        "min_class_share": "an absolute share floor, replaced by min_share_ratio",
+        "stuff_min_fraction": "stuff regions are now one per connected surface",
+        "min_contact_share": "a contact threshold tried and never released",
+    },
+}
+"""Config fields earlier versions wrote to ``run.json`` and this one no longer has, per stage,
+with what became of each: :meth:`PipelineConfig.from_stored` drops them so that re-clustering
+and re-classifying older runs keep working. A field removed from a stage config is added here
+in the same change."""
 
 
 _STAGES: dict[str, type[Any]] = {

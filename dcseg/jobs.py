@@ -6,6 +6,7 @@ Each job reads its inputs, calls the pipeline, and publishes a complete output f
 
 from __future__ import annotations
 
+import logging
 import os
 import platform
 import resource
@@ -57,6 +58,8 @@ from dcseg.types import Capture, GroundTruth, Vocabulary
 
 if TYPE_CHECKING:
     import torch
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -275,7 +278,7 @@ def resegment_job(
             reason = "the run holds no class-aware masks; give new ones and a vocabulary"
             raise InputError.single(str(run), reason)
         gt = _read_gt(ground_truth, saved.vocabulary)
-    cfg = _config(saved)
+    cfg = _config(saved, run)
     cfg = replace(cfg, scale=cfg.scale if scale is None else scale)
     if matcher is not None:
         cfg = replace(cfg, assign=replace(cfg.assign, mode=matcher))  # type: ignore[arg-type]
@@ -301,7 +304,7 @@ def evaluate_job(run: Path, gt_file: Path) -> dict[str, Any]:
     saved = load_run(run)
     gt = read_ground_truth(gt_file, len(saved.vocabulary))
     labels = load_labels(run, [v.name for v in saved.trained.views], size=_view_size(saved))
-    return _evaluate(saved, labels, gt, _config(saved), run)
+    return _evaluate(saved, labels, gt, _config(saved, run), run)
 
 
 def _finish(
@@ -428,8 +431,16 @@ def _scene(
     return gaussians
 
 
-def _config(saved: SavedRun) -> PipelineConfig:
-    return PipelineConfig.from_dict(saved.record["config"])
+def _config(saved: SavedRun, run: Path) -> PipelineConfig:
+    """The run's stored config; retired fields are dropped with a warning."""
+    try:
+        cfg, dropped = PipelineConfig.from_stored(saved.record["config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        reason = f"config cannot be read by this dcseg version: {exc}"
+        raise InputError.single(str(run / "run.json"), reason) from exc
+    if dropped:
+        log.warning("%s: ignoring retired config fields %s", run, ", ".join(dropped))
+    return cfg
 
 
 def _frame_size(capture: Capture) -> tuple[int, int]:

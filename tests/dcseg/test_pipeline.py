@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -387,3 +388,23 @@ def test_a_cache_within_its_memory_budget_is_never_read_back(
     run_job(inputs_of(scene), tiny_config(), tmp_path / "run")
     assert reads == []
     assert len(list((tmp_path / "run" / "state" / "views").glob("*.npz"))) == 6
+
+
+def test_older_run_with_retired_fields_still_reclusters(
+    run_dir: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    old = tmp_path / "old"
+    shutil.copytree(run_dir, old)
+    record = json.loads((old / "run.json").read_text())
+    record["config"]["assign"]["min_class_share"] = 0.15
+    (old / "run.json").write_text(json.dumps(record))
+    with caplog.at_level("WARNING", logger="dcseg.jobs"):
+        resegment_job(old, tmp_path / "again", scale=0.5)
+    assert "assign.min_class_share" in caplog.text
+    again = json.loads((tmp_path / "again" / "run.json").read_text())
+    assert "min_class_share" not in again["config"]["assign"]
+    record["config"]["assign"]["from_the_future"] = 1
+    (old / "run.json").write_text(json.dumps(record))
+    with pytest.raises(InputError, match=r"run\.json.*from_the_future"):
+        resegment_job(old, tmp_path / "refused", scale=0.5)
+    assert not (tmp_path / "refused").exists()

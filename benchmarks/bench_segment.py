@@ -225,6 +225,8 @@ def score_segmentation(
         "cluster_seed": cluster_seed,
         "segment_seconds": round(seconds, 2),
         "segment_cpu_seconds": round(cpu, 2),
+        "mask_agreement": round(seg.mask_agreement, 4),
+        "evidence_trusted": seg.evidence_trusted,
         "nearest": scorer.semantic(scorer.nearest(labels.semantic_ids)),
         "projection": scorer.semantic(
             scorer.projection([labels.label_maps[v.name] for v in views], views)

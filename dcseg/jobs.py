@@ -396,8 +396,17 @@ def _record(
             "instances": segmentation.n_instances,
             "labelled_gaussians": int((segmentation.semantic_ids >= 0).sum()),
         },
+        "segmentation": {
+            "mask_agreement": _finite(segmentation.mask_agreement),
+            "evidence_trusted": segmentation.evidence_trusted,
+        },
         "metrics_summary": None if metrics is None else metrics["summary"],
     }
+
+
+def _finite(value: float) -> float | None:
+    """A JSON-safe float: None for NaN."""
+    return None if value != value else round(value, 4)
 
 
 def _versions() -> dict[str, str]:

@@ -8,7 +8,7 @@ class-aware masks, cheaply, as often as wanted; ``evaluate_segmentation`` scores
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar, overload
 
@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
 from dcseg.assign.completion import complete_labels
-from dcseg.assign.consistency import inconsistent
+from dcseg.assign.consistency import inconsistent, mask_agreement
 from dcseg.assign.instances import Instances, adopt_fragments, object_instances
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.blend import BlendWeights
@@ -79,6 +79,10 @@ class Segmentation:
         cluster_maps: per view name, ``[H, W]`` cluster per pixel (-1 = none), cleaned.
         label_maps: per view name, ``[H, W]`` class per pixel (-1 = none): rendered from
             ``semantic_ids`` or from the cluster maps (``AssignConfig.maps_from``).
+        mask_agreement: how well the class-aware masks agree with the labelled clusters
+            (:func:`~dcseg.assign.consistency.mask_agreement`), NaN when not measured.
+        evidence_trusted: whether it reached ``AssignConfig.trust_agreement``, so that the
+            Gaussians' own evidence decided the consistency step and completion.
     """
 
     clustering: Clustering
@@ -87,6 +91,8 @@ class Segmentation:
     semantic_ids: NDArray[np.int64]
     cluster_maps: dict[str, NDArray[np.int32]]
     label_maps: dict[str, NDArray[np.int32]]
+    mask_agreement: float = float("nan")
+    evidence_trusted: bool = False
 
     @property
     def n_clusters(self) -> int:
@@ -247,6 +253,11 @@ def segment_scene(
     needed = (a.min_share_ratio > 0 and bool(labelled)) or a.objects or a.complete
     # one pass over the views' blending weights serves the consistency step and the objects
     evidence = _scene_evidence(trained, semantic, n_classes) if needed else None
+    agreement = float("nan")
+    if evidence is not None:
+        agreement = mask_agreement(label_map(clustering.labels, assignment.labels), evidence)
+    cfg, trusted = _trusting(cfg, agreement)
+    a = cfg.assign
     refine = a.min_share_ratio > 0 and bool(labelled) and evidence is not None
     if refine and evidence is not None:
         clustering, assignment = _drop_inconsistent(evidence, clustering, assignment, cfg)
@@ -266,7 +277,21 @@ def segment_scene(
         label_maps = {
             name: label_map(ids, assignment.labels).astype(np.int32) for name, ids in maps.items()
         }
-    return Segmentation(clustering, assignment, instances, semantic_ids, maps, label_maps)
+    return Segmentation(
+        clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted
+    )
+
+
+def _trusting(cfg: PipelineConfig, agreement: float) -> tuple[PipelineConfig, bool]:
+    """``cfg`` with the trusted-evidence settings when the masks agree enough
+    (``AssignConfig.trust_agreement``), and whether they did."""
+    a = cfg.assign
+    if a.trust_agreement is None or not agreement >= a.trust_agreement:
+        return cfg, False
+    trusted = replace(
+        a, min_share_ratio=a.trusted_share_ratio, evidence_weight=a.trusted_evidence_weight
+    )
+    return replace(cfg, assign=trusted), True
 
 
 def _scene_evidence(
@@ -349,11 +374,14 @@ def _final_maps(
     ``cfg.masks.min_weight``, then the 2D component filter.
     """
     clusters, classes = {}, {}
+    label_masks = cfg.masks
+    if not cfg.assign.filter_label_maps:
+        label_masks = replace(cfg.masks, min_area_fraction=0.0)
     for i, view in enumerate(views):
         blend = view.blend  # read once: a view in the cache folder is loaded per access
         if cluster_labels is not None:
             clusters[view.name] = cluster_map(blend, cluster_labels, cfg.masks)
-        classes[view.name] = cluster_map(blend, semantic_ids, cfg.masks)
+        classes[view.name] = cluster_map(blend, semantic_ids, label_masks)
         on_progress("refine", (i + 1) / len(views), f"view {view.name}")
     return (clusters if cluster_labels is not None else maps), classes
 

@@ -113,3 +113,63 @@ def test_per_view_maps_are_held_as_int32(maps_from: str) -> None:
     for maps in (seg.cluster_maps, seg.label_maps):
         assert {m.dtype for m in maps.values()} == {np.dtype(np.int32)}
     assert seg.instance_map("v0").tolist()[0][:6] == [0] * 6
+
+
+def test_masks_that_agree_everywhere_let_each_gaussian_follow_its_own_evidence(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Gaussians 0-9 form cluster 0 (class 0), 11 cluster 1 (class 1), 10 is noise. Pixel 10
+    is class 1 in four of five views and class 0 in one; every other pixel is the same in all
+    views, so the masks agree with the labelled clusters everywhere (agreement 1.0). Completion
+    gives Gaussian 10 its neighbours' class 0 (7 of its 8 neighbours) when evidence is not
+    trusted, and class 1 (its own evidence, 0.8) when it is."""
+    clusters = np.array([0] * 10 + [-1, 1])
+
+    def fixed(*args: Any, **kwargs: Any) -> Clustering:
+        return Clustering(clusters.copy(), np.eye(2, dtype=np.float32), np.ones(N, np.float32))
+
+    monkeypatch.setattr("dcseg.pipeline.cluster_features", fixed)
+    trained = scene(n_views=5)
+    semantic = {}
+    for i, view in enumerate(trained.views):
+        classes = np.array([[0] * 10 + [1 if i else 0, 1]], dtype=np.int32)
+        semantic[view.name] = SemanticMap(view.name, classes)
+
+    def run(**assign: Any) -> Any:
+        return segment_scene(trained, semantic, 2, config("gaussians", **assign))
+
+    trusted, plain = run(), run(trust_agreement=None)
+    assert trusted.mask_agreement == pytest.approx(1.0) == plain.mask_agreement
+    assert trusted.evidence_trusted and not plain.evidence_trusted
+    assert trusted.semantic_ids.tolist() == [0] * 10 + [1, 1]
+    assert plain.semantic_ids.tolist() == [0] * 10 + [0, 1]
+    assert not run(trust_agreement=1.0 - 1e-9, trusted_evidence_weight=1.0).semantic_ids[10]
+
+
+def test_masks_that_disagree_keep_cluster_decisions() -> None:
+    """The module's scene: Gaussians 6-7 of cluster 0 sit on class-1 pixels, agreement 10/12."""
+    seg = segment(config("gaussians"))
+    assert seg.mask_agreement == pytest.approx(10 / 12)
+    assert not seg.evidence_trusted
+
+
+@pytest.mark.parametrize("filtered", [True, False])
+def test_label_maps_keep_small_objects_unless_filtered(filtered: bool) -> None:
+    """View v1 sees cluster 1 (class 1) over 2 pixels only (pixels 10-11 show Gaussian 7, a
+    2-pixel piece of cluster 0): a component filter of 3 pixels erases both pieces from its
+    cluster map, and from its label map only when ``filter_label_maps`` is on; view v0
+    (4 pixels) keeps class 1 either way."""
+    trained = scene()
+    ids = torch.tensor([*range(10), 7, 7])
+    far = BlendWeights(1, N, torch.arange(N + 1), ids, torch.full((N,), 0.9))
+    v1 = ViewState.in_memory("v1", np.eye(3), np.eye(4), far, np.ones((1, N), np.float32))
+    trained = TrainedScene(trained.gaussians, None, (trained.views[0], v1))  # type: ignore[arg-type]
+    semantic = {v.name: SemanticMap(v.name, CLASSES) for v in trained.views}
+    cfg = config("gaussians", min_share_ratio=0.0, filter_label_maps=filtered)
+    cfg = replace(cfg, masks=replace(cfg.masks, min_area_fraction=0.25))
+    seg = segment_scene(trained, semantic, 2, cfg)
+    assert seg.semantic_ids.tolist() == [0] * 8 + [1] * 4
+    assert seg.label_maps["v0"].tolist() == [[0] * 8 + [1] * 4]
+    assert seg.cluster_maps["v1"].tolist() == [[0] * 8 + [-1] * 4]
+    small = [-1] * 4 if filtered else [1, 1, 0, 0]
+    assert seg.label_maps["v1"].tolist() == [[0] * 8 + small]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dcseg.assign.config import AssignConfig
-from dcseg.assign.consistency import inconsistent
+from dcseg.assign.consistency import inconsistent, mask_agreement
 
 
 def test_far_below_the_cluster_share_is_inconsistent() -> None:
@@ -55,3 +55,22 @@ def test_exception_bad_ratio_and_shapes() -> None:
         inconsistent(labels, labels, np.zeros(3), np.ones(2), 0.1)
     with pytest.raises(ValueError, match="min_share_ratio must be in"):
         AssignConfig(min_share_ratio=-0.1)
+
+
+def test_mask_agreement_weighs_evidence_of_labelled_gaussians_only() -> None:
+    ev = np.array([[3.0, 1.0], [0.0, 2.0], [5.0, 5.0], [0.0, 0.0]])
+    assert mask_agreement(np.array([0, 1, -1, 0]), ev) == pytest.approx(5 / 6)
+    assert mask_agreement(np.array([1, 0, -1, -1]), ev) == pytest.approx(1 / 6)
+    assert np.isnan(mask_agreement(np.array([-1, -1, -1, 0]), ev))
+    with pytest.raises(ValueError, match="N rows"):
+        mask_agreement(np.array([0, 1]), ev)
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [("trust_agreement", 1.5), ("trust_agreement", -0.1), ("trusted_share_ratio", 2.0),
+     ("trusted_evidence_weight", -1.0)],
+)  # fmt: skip
+def test_trust_settings_are_checked(field: str, value: float) -> None:
+    with pytest.raises(ValueError, match=field):
+        AssignConfig(**{field: value})

@@ -72,6 +72,9 @@ def test_run_writes_every_output(run_dir: Path, scene: Path) -> None:
     record = json.loads((run_dir / "run.json").read_text())
     assert set(record["seconds"]) >= {"read", "reconstruct", "train", "segment", "write"}
     assert record["counts"]["clusters"] >= 2
+    agreement = record["segmentation"]["mask_agreement"]  # clean masks of the tiny scene
+    assert 0.5 < agreement <= 1.0
+    assert record["segmentation"]["evidence_trusted"] == (agreement >= 0.985)
     stems = [p.stem for p in (scene / "rgb").iterdir()]
     for stem in stems:
         ids = read_image(run_dir / "masks" / f"{stem}.png")

@@ -225,7 +225,10 @@ def segment_scene(
 ) -> Segmentation:
     """Cluster at ``cfg.scale``, render cluster maps, label clusters, and build objects.
 
-    With ``cfg.assign.min_share_ratio > 0``, Gaussians whose own class-mask evidence
+    When the class-aware masks agree with the labelled clusters at least
+    ``cfg.assign.trust_agreement``, the trusted share ratio and evidence weight replace the
+    usual ones below (:func:`~dcseg.assign.consistency.mask_agreement`). With
+    ``cfg.assign.min_share_ratio > 0``, Gaussians whose own class-mask evidence
     contradicts their cluster's class then leave it (:mod:`dcseg.assign.consistency`),
     clusters left empty are removed, and the cluster maps are rendered again; the votes stay
     those of the first maps. Then unlabelled clusters adopt a touching labelled neighbour's
@@ -257,6 +260,9 @@ def segment_scene(
     if evidence is not None:
         agreement = mask_agreement(label_map(clustering.labels, assignment.labels), evidence)
     cfg, trusted = _trusting(cfg, agreement)
+    if agreement == agreement:
+        trust = "own evidence trusted" if trusted else "clusters decide"
+        on_progress("assign", 1.0, f"mask agreement {agreement:.3f}: {trust}")
     a = cfg.assign
     refine = a.min_share_ratio > 0 and bool(labelled) and evidence is not None
     if refine and evidence is not None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -73,4 +75,4 @@ def test_mask_agreement_weighs_evidence_of_labelled_gaussians_only() -> None:
 )  # fmt: skip
 def test_trust_settings_are_checked(field: str, value: float) -> None:
     with pytest.raises(ValueError, match=field):
-        AssignConfig(**{field: value})
+        replace(AssignConfig(), **{field: value})

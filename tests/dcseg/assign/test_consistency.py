@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -74,5 +74,6 @@ def test_mask_agreement_weighs_evidence_of_labelled_gaussians_only() -> None:
      ("trusted_evidence_weight", -1.0)],
 )  # fmt: skip
 def test_trust_settings_are_checked(field: str, value: float) -> None:
+    changes: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
-        replace(AssignConfig(), **{field: value})
+        AssignConfig(**changes)

@@ -397,16 +397,11 @@ def _record(
             "labelled_gaussians": int((segmentation.semantic_ids >= 0).sum()),
         },
         "segmentation": {
-            "mask_agreement": _finite(segmentation.mask_agreement),
+            "mask_agreement": round(segmentation.mask_agreement, 4),  # write_json: NaN -> null
             "evidence_trusted": segmentation.evidence_trusted,
         },
         "metrics_summary": None if metrics is None else metrics["summary"],
     }
-
-
-def _finite(value: float) -> float | None:
-    """A JSON-safe float: None for NaN."""
-    return None if value != value else round(value, 4)
 
 
 def _versions() -> dict[str, str]:

@@ -17,7 +17,12 @@ from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
 from dcseg.assign.completion import complete_labels
-from dcseg.assign.consistency import inconsistent, mask_agreement
+from dcseg.assign.consistency import (
+    inconsistent,
+    mask_agreement,
+    rejected_groups,
+    unsupported,
+)
 from dcseg.assign.instances import Instances, adopt_fragments, object_instances
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.blend import BlendWeights
@@ -258,6 +263,7 @@ def segment_scene(
     evidence = _scene_evidence(trained, semantic, n_classes) if needed else None
     agreement = float("nan")
     if evidence is not None:
+        assignment = _supported(evidence, clustering, assignment, cfg, on_progress)
         agreement = mask_agreement(label_map(clustering.labels, assignment.labels), evidence)
     cfg, trusted = _trusting(cfg, agreement)
     if agreement == agreement:
@@ -265,11 +271,18 @@ def segment_scene(
         on_progress("assign", 1.0, f"mask agreement {agreement:.3f}: {trust}")
     a = cfg.assign
     refine = a.min_share_ratio > 0 and bool(labelled) and evidence is not None
+    means = trained.gaussians.means.detach().cpu().numpy().astype(np.float64)
+    radius = adaptive_radius(means, a.contact_factor, seed=cfg.seed)
+    regrouped = None
     if refine and evidence is not None:
-        clustering, assignment = _drop_inconsistent(evidence, clustering, assignment, cfg)
+        clustering, assignment, regrouped = _drop_inconsistent(
+            evidence, clustering, assignment, means, radius, cfg
+        )
     semantic_ids = label_map(clustering.labels, assignment.labels)
+    if regrouped is not None:
+        semantic_ids = np.where(regrouped >= 0, regrouped, semantic_ids)
     instances, semantic_ids = _objects(
-        trained, evidence, clustering, assignment, semantic_ids, cfg, class_names
+        means, radius, evidence, clustering, assignment, semantic_ids, cfg, class_names
     )
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
     if a.maps_from == "gaussians":
@@ -286,6 +299,34 @@ def segment_scene(
     return Segmentation(
         clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted
     )
+
+
+def _supported(
+    evidence: NDArray[np.float64],
+    clustering: Clustering,
+    assignment: Assignment,
+    cfg: PipelineConfig,
+    on_progress: Progress,
+) -> Assignment:
+    """``assignment`` with each vote that its cluster's own pooled evidence does not support
+    (:func:`~dcseg.assign.consistency.unsupported`, ``cfg.assign.min_cluster_support``)
+    replaced by the class that evidence supports most; its score becomes that class's share
+    of the cluster's summed IoU votes (often 0: the masks' vote never reached it)."""
+    a = assignment
+    weak = unsupported(clustering.labels, a.labels, evidence, cfg.assign.min_cluster_support)
+    if not weak.any():
+        return a
+    member = clustering.labels >= 0
+    pooled = np.zeros((len(a.labels), evidence.shape[1]))
+    np.add.at(pooled, clustering.labels[member], evidence[member])
+    labels = a.labels.copy()
+    labels[weak] = pooled[weak].argmax(axis=1)
+    on_progress("assign", 1.0, f"{int(weak.sum())} votes unsupported by their clusters' evidence")
+    scores = a.scores.copy()
+    total = a.votes[weak].sum(axis=1)
+    won = a.votes[weak, labels[weak]]
+    scores[weak] = np.divide(won, total, out=np.zeros_like(won), where=total > 0)
+    return Assignment(labels, scores, a.votes.copy(), a.n_views.copy())
 
 
 def _trusting(cfg: PipelineConfig, agreement: float) -> tuple[PipelineConfig, bool]:
@@ -310,7 +351,8 @@ def _scene_evidence(
 
 
 def _objects(
-    trained: TrainedScene,
+    means: NDArray[np.float64],
+    radius: float,
     evidence: NDArray[np.float64] | None,
     clustering: Clustering,
     assignment: Assignment,
@@ -318,11 +360,13 @@ def _objects(
     cfg: PipelineConfig,
     class_names: Sequence[str],
 ) -> tuple[Instances, NDArray[np.int64]]:
-    """Adopt unlabelled clusters, complete labels, and build object instances."""
+    """Adopt unlabelled clusters, complete labels, and build object instances.
+
+    ``means`` are the Gaussians' centres and ``radius`` the contact radius
+    (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.assign.contact_factor``).
+    """
     a = cfg.assign
     labels = clustering.labels
-    means = trained.gaussians.means.detach().cpu().numpy().astype(np.float64)
-    radius = adaptive_radius(means, a.contact_factor, seed=cfg.seed)
     if (not a.objects and not a.complete) or radius <= 0 or evidence is None:
         return _per_cluster(labels, assignment), semantic_ids
     fragments = adopt_fragments(means, labels, semantic_ids, evidence, radius, a)
@@ -396,13 +440,20 @@ def _drop_inconsistent(
     evidence: NDArray[np.float64],
     clustering: Clustering,
     assignment: Assignment,
+    means: NDArray[np.float64],
+    radius: float,
     cfg: PipelineConfig,
-) -> tuple[Clustering, Assignment]:
+) -> tuple[Clustering, Assignment, NDArray[np.int64]]:
     """Gaussians contradicted by their own class evidence become noise; empty clusters go.
 
     ``agree`` (evidence for the Gaussian's cluster class) and ``total`` (for any class) are
     read off ``evidence`` (:func:`_scene_evidence`): the sums that
     :func:`dcseg.segment.class_agreement` makes in a pass of its own.
+
+    Returns:
+        The clustering and assignment without them, and ``[N]`` the class that the touching
+        groups of at least ``cfg.assign.regroup_min_gaussians`` of them keep
+        (:func:`~dcseg.assign.consistency.rejected_groups`), -1 elsewhere.
     """
     classes = label_map(clustering.labels, assignment.labels)
     own = evidence[np.arange(len(classes)), np.maximum(classes, 0)]
@@ -412,10 +463,15 @@ def _drop_inconsistent(
     drop = inconsistent(clustering.labels, classes, agree, total, cfg.assign.min_share_ratio)
     labels[drop] = -1
     used = np.bincount(labels[labels >= 0], minlength=clustering.n_clusters) > 0
+    regrouped = np.full(len(labels), -1, dtype=np.int64)
+    min_size = cfg.assign.regroup_min_gaussians
+    if min_size > 0 and radius > 0:
+        origin = np.where(drop, clustering.labels, -1)
+        regrouped = rejected_groups(means, origin, evidence, radius, min_size)
     labels, centers = compact_labels(labels, clustering.centers)
     a = assignment
     kept = Assignment(a.labels[used], a.scores[used], a.votes[used], a.n_views[used])
-    return Clustering(labels, centers, clustering.scores.copy()), kept
+    return Clustering(labels, centers, clustering.scores.copy()), kept, regrouped
 
 
 def evaluate_segmentation(

@@ -98,3 +98,110 @@ def mask_agreement(classes: NDArray[np.integer[Any]], evidence: NDArray[np.float
     if total <= 0:
         return float("nan")
     return float(ev[rows, labels[rows]].sum() / total)
+
+
+def unsupported(
+    cluster_labels: NDArray[np.integer[Any]],
+    assigned: NDArray[np.integer[Any]],
+    evidence: NDArray[np.floating[Any]],
+    min_support: float,
+) -> NDArray[np.bool_]:
+    """Which labelled clusters their own pooled class evidence does not support.
+
+    A cluster's pooled evidence is its Gaussians' class evidence summed. Its voted class is
+    unsupported when that class gets less than ``min_support`` x the pooled evidence of the
+    cluster's best-supported class. The vote matches whole cluster masks by IoU, and when a
+    class's replicas per view are taken by bigger clusters, a surface cluster beside a small
+    object can win the object's class in a few views and never its own: a 1300-Gaussian floor
+    patch voted ``domino`` whose own evidence gives domino 0.3 % of its weight. A rare object
+    missed in most views keeps a share well above such a floor (each view that sees it counts).
+
+    Args:
+        cluster_labels: ``[N]`` cluster of every Gaussian, -1 = noise.
+        assigned: ``[K]`` class of every cluster, -1 = none (never unsupported).
+        evidence: ``[N, C]`` class evidence per Gaussian (:func:`dcseg.segment.class_evidence`).
+        min_support: in [0, 1]; 0 = every vote stands.
+
+    Returns:
+        ``[K]`` bool.
+
+    Example:
+        >>> ev = np.array([[0.0, 5.0], [0.1, 4.0], [3.0, 1.0]])
+        >>> unsupported(np.array([0, 0, 1]), np.array([0, 0]), ev, 0.1).tolist()
+        [True, False]
+    """
+    if not 0.0 <= min_support <= 1.0:
+        raise ValueError(f"min_support must be in [0, 1], got {min_support}")
+    labels = np.asarray(cluster_labels, dtype=np.int64)
+    classes = np.asarray(assigned, dtype=np.int64)
+    ev = np.asarray(evidence, dtype=np.float64)
+    if ev.ndim != 2 or labels.shape != (len(ev),) or classes.ndim != 1:
+        raise ValueError(
+            f"cluster_labels {labels.shape}, assigned {classes.shape} and evidence "
+            f"{ev.shape} must be [N], [K] and [N, C]"
+        )
+    member = (labels >= 0) & (labels < len(classes))
+    pooled = np.zeros((len(classes), ev.shape[1]))
+    np.add.at(pooled, labels[member], ev[member])
+    voted = pooled[np.arange(len(classes)), np.maximum(classes, 0)]
+    best = pooled.max(axis=1, initial=0.0)
+    weak: NDArray[np.bool_] = (classes >= 0) & (best > 0) & (voted < min_support * best)
+    return weak
+
+
+def rejected_groups(
+    means: NDArray[np.floating[Any]],
+    origin: NDArray[np.integer[Any]],
+    evidence: NDArray[np.floating[Any]],
+    radius: float,
+    min_size: int,
+) -> NDArray[np.int64]:
+    """Class of each connected group of Gaussians that one cluster's evidence test rejected.
+
+    ``origin`` is the cluster a Gaussian left (-1 = it left none). Gaussians that left the same
+    cluster and lie within ``radius`` of each other form groups; a group of at least
+    ``min_size`` takes the class its pooled evidence supports most, the rest -1 (a group
+    with no evidence at all too). Used after the consistency step
+    (``AssignConfig.regroup_min_gaussians``): an object that the class-agnostic masks merged
+    with its support leaves the support's cluster as one such group.
+
+    Args:
+        means: ``[N, 3]`` Gaussian centres.
+        origin: ``[N]`` int cluster each Gaussian left, -1 = none.
+        evidence: ``[N, C]`` class evidence per Gaussian.
+        radius: > 0; Gaussians closer than this touch.
+        min_size: >= 1.
+
+    Returns:
+        ``[N]`` int64 class per Gaussian, -1 outside the kept groups.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    src = np.asarray(origin, dtype=np.int64)
+    points = np.asarray(means, dtype=np.float64)
+    ev = np.asarray(evidence, dtype=np.float64)
+    n = len(src)
+    if points.shape != (n, 3) or ev.ndim != 2 or len(ev) != n or src.ndim != 1:
+        raise ValueError(
+            f"means {points.shape}, origin {src.shape} and evidence {ev.shape} must be "
+            "[N, 3], [N] and [N, C]"
+        )
+    if radius <= 0 or min_size < 1:
+        raise ValueError(f"radius must be > 0 and min_size >= 1, got {radius} and {min_size}")
+    out = np.full(n, -1, dtype=np.int64)
+    rows = np.flatnonzero(src >= 0)
+    if len(rows) < min_size:
+        return out
+    xyz = points[rows]
+    pairs = cKDTree(xyz).query_pairs(radius, output_type="ndarray")
+    pairs = pairs[src[rows[pairs[:, 0]]] == src[rows[pairs[:, 1]]]]
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(rows),) * 2)
+    _, comp = connected_components(graph, directed=False)
+    sizes = np.bincount(comp)
+    pooled = np.zeros((len(sizes), ev.shape[1]))
+    np.add.at(pooled, comp, ev[rows])
+    big = (sizes >= min_size) & (pooled.sum(axis=1) > 0)
+    out[rows] = np.where(big[comp], pooled.argmax(axis=1)[comp], -1)
+    return out

@@ -232,15 +232,22 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
     base = PipelineConfig.from_dict(saved.record["config"])
     n_classes = len(saved.vocabulary)
 
-    def segment(ratio: float) -> Segmentation:
-        # completion and objects off: this test is about the consistency step alone, and its
-        # label maps are the cluster maps through each cluster's class
+    def segment(ratio: float, regroup: int = 0) -> Segmentation:
+        # completion, objects and regrouping off: this test is about the consistency step
+        # alone, and its label maps are the cluster maps through each cluster's class
         assign = replace(
-            base.assign, min_share_ratio=ratio, complete=False, objects=False, maps_from="clusters"
-        )
+            base.assign, min_share_ratio=ratio, complete=False, objects=False,
+            maps_from="clusters", regroup_min_gaussians=regroup,
+        )  # fmt: skip
         return segment_scene(saved.trained, saved.semantic, n_classes, replace(base, assign=assign))
 
     plain, refined = segment(0.0), segment(0.9)
+    # Regrouping gives classes back to some of the Gaussians that left, never to others, and
+    # leaves the cluster level as it is.
+    grouped = segment(0.9, regroup=5)
+    assert np.array_equal(grouped.clustering.labels, refined.clustering.labels)
+    changed = grouped.semantic_ids != refined.semantic_ids
+    assert changed.any() and (refined.semantic_ids[changed] == -1).all()
     before, after = plain.semantic_ids, refined.semantic_ids
     dropped = (before >= 0) & (after < 0)
     assert dropped.any(), "a 0.9 ratio must drop some Gaussians on this scene"

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 
+from dcseg.assign.stage import Assignment
 from dcseg.blend import BlendWeights
 from dcseg.cluster.features import Clustering
 from dcseg.config import PipelineConfig, preset
@@ -173,3 +174,57 @@ def test_label_maps_keep_small_objects_unless_filtered(filtered: bool) -> None:
     assert seg.cluster_maps["v1"].tolist() == [[0] * 8 + [-1] * 4]
     small = [-1] * 4 if filtered else [1, 1, 0, 0]
     assert seg.label_maps["v1"].tolist() == [[0] * 8 + small]
+
+
+def one_cluster(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every Gaussian in cluster 0."""
+
+    def fixed(*args: Any, **kwargs: Any) -> Clustering:
+        return Clustering(
+            np.zeros(N, np.int64), np.eye(1, dtype=np.float32), np.ones(N, np.float32)
+        )
+
+    monkeypatch.setattr("dcseg.pipeline.cluster_features", fixed)
+
+
+@pytest.mark.parametrize(("min_size", "duck"), [(3, 1), (4, 0), (0, 0)])
+def test_an_object_that_leaves_its_support_cluster_keeps_its_class(
+    monkeypatch: pytest.MonkeyPatch, min_size: int, duck: int
+) -> None:
+    """A duck on a tray, merged into one cluster by the class-agnostic masks: Gaussians 4-6 sit
+    on class-1 pixels of a cluster voted class 0. They leave it (consistency step); as a
+    touching group of 3 they keep class 1 when ``regroup_min_gaussians`` <= 3. Otherwise they
+    are noise, and completion from the tray around them gives them the tray's class."""
+    one_cluster(monkeypatch)
+    trained = scene()
+    classes = np.array([[0] * 4 + [1] * 3 + [0] * 5], dtype=np.int32)
+    semantic = {v.name: SemanticMap(v.name, classes) for v in trained.views}
+    cfg = config("gaussians", regroup_min_gaussians=min_size)
+    seg = segment_scene(trained, semantic, 2, cfg)
+    assert seg.assignment.labels.tolist() == [0]
+    assert seg.semantic_ids.tolist() == [0] * 4 + [duck] * 3 + [0] * 5
+    assert (seg.clustering.labels[4:7] == -1).all()  # the cluster level keeps them out
+
+
+@pytest.mark.parametrize(("support", "floor"), [(0.1, 0), (0.0, 1)])
+def test_a_vote_its_cluster_evidence_does_not_support_takes_the_supported_class(
+    monkeypatch: pytest.MonkeyPatch, support: float, floor: int
+) -> None:
+    """Cluster 0 (Gaussians 0-7, all on class-0 pixels; the fixture's clusters and a map with
+    classes 0 | 1 at pixels 0-7 | 8-11) voted class 1 by the masks: its own evidence gives
+    class 1 nothing, so with ``min_cluster_support`` > 0 it takes class 0. With 0 the vote
+    stands, and no Gaussian of the cluster leaves it (none has a share below the cluster's)."""
+
+    def voted(*args: Any, **kwargs: Any) -> Assignment:
+        return Assignment(np.array([1, 1]), np.ones(2), np.array([[0.0, 2.0], [0.0, 2.0]]),
+                          np.array([2, 2]))  # fmt: skip
+
+    monkeypatch.setattr("dcseg.pipeline.assign_labels", voted)
+    trained = scene()
+    classes = np.array([[0] * 8 + [1] * 4], dtype=np.int32)
+    semantic = {v.name: SemanticMap(v.name, classes) for v in trained.views}
+    seg = segment_scene(trained, semantic, 2, config("gaussians", min_cluster_support=support))
+    assert seg.assignment.labels.tolist() == [floor, 1]
+    assert seg.semantic_ids.tolist() == [floor] * 8 + [1] * 4
+    # the new class's share of the cluster's votes: the masks never voted class 0 for it
+    assert seg.assignment.scores[0] == (0.0 if support else 1.0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dcseg.assign.config import AssignConfig
-from dcseg.assign.consistency import inconsistent, mask_agreement
+from dcseg.assign.consistency import inconsistent, mask_agreement, rejected_groups, unsupported
 
 
 def test_far_below_the_cluster_share_is_inconsistent() -> None:
@@ -77,3 +77,66 @@ def test_trust_settings_are_checked(field: str, value: float) -> None:
     changes: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
         AssignConfig(**changes)
+
+
+def test_floor_cluster_voted_as_an_object_is_unsupported() -> None:
+    """Cluster 0 (floor, class 0) was voted class 2 (a domino beside it): its own evidence
+    gives class 2 1 % of class 0's. Cluster 1, voted the look-alike class 1, has 0.3 of its
+    best class's evidence: a confusion the masks repeat, not a stray vote; it stays."""
+    labels = np.array([0, 0, 0, 1, 1, -1])
+    assigned = np.array([2, 1])
+    evidence = np.array(
+        [[5.0, 0.0, 0.1], [4.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.6, 2.0], [0.0, 0.3, 1.0],
+         [0.0, 0.0, 9.0]]
+    )  # fmt: skip
+    assert unsupported(labels, assigned, evidence, 0.1).tolist() == [True, False]
+    assert unsupported(labels, assigned, evidence, 0.5).tolist() == [True, True]
+    assert not unsupported(labels, assigned, evidence, 0.0).any()
+
+
+def test_unlabelled_and_unseen_clusters_are_never_unsupported() -> None:
+    labels = np.array([0, 1, 2])
+    evidence = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 3.0]])
+    # cluster 0 unlabelled; cluster 1 seen by no class map; cluster 2 has no Gaussian at all
+    assert not unsupported(labels[:2], np.array([-1, 0, 1]), evidence[:2], 1.0).any()
+
+
+def test_exception_unsupported_shapes_and_support() -> None:
+    with pytest.raises(ValueError, match="min_support"):
+        unsupported(np.zeros(2, int), np.zeros(1, int), np.ones((2, 2)), 1.5)
+    with pytest.raises(ValueError, match=r"\[N\], \[K\] and \[N, C\]"):
+        unsupported(np.zeros(3, int), np.zeros(1, int), np.ones((2, 2)), 0.1)
+
+
+def test_rejected_groups_keep_the_class_their_evidence_pools_to() -> None:
+    """Gaussians 0-3 left cluster 0 and touch (0.1 apart): one group, class 1 by its pooled
+    evidence though Gaussian 3 alone says class 0. Gaussians 4-5 left cluster 0 too but sit
+    5 m away: a group of 2, below ``min_size``. Gaussians 6-7 touch 0-3 but left cluster 1:
+    another group, also too small. Gaussian 8 left nothing."""
+    means = np.zeros((9, 3))
+    means[:4, 0] = [0.0, 0.1, 0.2, 0.3]
+    means[4:6, 0] = [5.0, 5.1]
+    means[6:8, 0] = [0.35, 0.4]
+    origin = np.array([0, 0, 0, 0, 0, 0, 1, 1, -1])
+    evidence = np.array([[0.0, 1.0]] * 3 + [[0.9, 0.1]] + [[1.0, 0.0]] * 5)
+    groups = rejected_groups(means, origin, evidence, radius=0.15, min_size=3)
+    assert groups.tolist() == [1, 1, 1, 1, -1, -1, -1, -1, -1]
+    assert rejected_groups(means, origin, evidence, radius=0.15, min_size=2).tolist() == [
+        1, 1, 1, 1, 0, 0, 0, 0, -1
+    ]  # fmt: skip
+
+
+def test_rejected_groups_without_evidence_or_members_stay_unlabelled() -> None:
+    means = np.zeros((3, 3))
+    means[:, 0] = [0.0, 0.1, 0.2]
+    unseen = rejected_groups(means, np.zeros(3, int), np.zeros((3, 2)), 0.15, min_size=1)
+    assert unseen.tolist() == [-1, -1, -1]
+    none_left = rejected_groups(means, np.full(3, -1), np.ones((3, 2)), 0.15, min_size=1)
+    assert none_left.tolist() == [-1, -1, -1]
+
+
+def test_exception_rejected_groups_shapes_and_settings() -> None:
+    with pytest.raises(ValueError, match=r"\[N, 3\], \[N\] and \[N, C\]"):
+        rejected_groups(np.zeros((3, 2)), np.zeros(3, int), np.ones((3, 2)), 0.1, 1)
+    with pytest.raises(ValueError, match="radius must be > 0 and min_size >= 1"):
+        rejected_groups(np.zeros((3, 3)), np.zeros(3, int), np.ones((3, 2)), 0.1, 0)

@@ -26,7 +26,7 @@ from dcseg.assign.consistency import (
 from dcseg.assign.instances import Instances, adopt_fragments, object_instances
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.blend import BlendWeights
-from dcseg.cluster.features import Clustering
+from dcseg.cluster.features import Clustering, as_numpy
 from dcseg.cluster.outliers import adaptive_radius, compact_labels
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import CacheConfig, PipelineConfig
@@ -273,14 +273,12 @@ def segment_scene(
     refine = a.min_share_ratio > 0 and bool(labelled) and evidence is not None
     means = trained.gaussians.means.detach().cpu().numpy().astype(np.float64)
     radius = adaptive_radius(means, a.contact_factor, seed=cfg.seed)
-    regrouped = None
     if refine and evidence is not None:
-        clustering, assignment, regrouped = _drop_inconsistent(
-            evidence, clustering, assignment, means, radius, cfg
+        stuff = _stuff_ids(class_names, a.stuff_classes)
+        clustering, assignment = _drop_inconsistent(
+            evidence, clustering, assignment, (features, means, radius, stuff), cfg
         )
     semantic_ids = label_map(clustering.labels, assignment.labels)
-    if regrouped is not None:
-        semantic_ids = np.where(regrouped >= 0, regrouped, semantic_ids)
     instances, semantic_ids = _objects(
         means, radius, evidence, clustering, assignment, semantic_ids, cfg, class_names
     )
@@ -378,7 +376,7 @@ def _objects(
         )  # fmt: skip
     if not a.objects:
         return _per_cluster(labels, assignment), ids
-    stuff = [i for i, name in enumerate(class_names) if name in a.stuff_classes]
+    stuff = _stuff_ids(class_names, a.stuff_classes)
     instances = object_instances(
         means, labels, ids, fragments, clustering.centers, assignment.votes,
         assignment.scores, stuff, radius, a,
@@ -436,42 +434,85 @@ def _final_maps(
     return (clusters if cluster_labels is not None else maps), classes
 
 
+Geometry = tuple[Any, NDArray[np.float64], float, Sequence[int]]
+"""A scene's clustering features (``[N, D]`` array or tensor), Gaussian centres, contact
+radius and the ids of its stuff classes (``AssignConfig.stuff_classes``)."""
+
+
+def _stuff_ids(class_names: Sequence[str], stuff_classes: Sequence[str]) -> list[int]:
+    """Indices of the vocabulary's stuff classes (names absent from it are ignored)."""
+    return [i for i, name in enumerate(class_names) if name in stuff_classes]
+
+
 def _drop_inconsistent(
     evidence: NDArray[np.float64],
     clustering: Clustering,
     assignment: Assignment,
-    means: NDArray[np.float64],
-    radius: float,
+    geometry: Geometry,
     cfg: PipelineConfig,
-) -> tuple[Clustering, Assignment, NDArray[np.int64]]:
+) -> tuple[Clustering, Assignment]:
     """Gaussians contradicted by their own class evidence become noise; empty clusters go.
 
     ``agree`` (evidence for the Gaussian's cluster class) and ``total`` (for any class) are
     read off ``evidence`` (:func:`_scene_evidence`): the sums that
-    :func:`dcseg.segment.class_agreement` makes in a pass of its own.
-
-    Returns:
-        The clustering and assignment without them, and ``[N]`` the class that the touching
-        groups of at least ``cfg.assign.regroup_min_gaussians`` of them keep
-        (:func:`~dcseg.assign.consistency.rejected_groups`), -1 elsewhere.
+    :func:`dcseg.segment.class_agreement` makes in a pass of its own. Touching groups of at
+    least ``cfg.assign.regroup_min_gaussians`` of the Gaussians that left one cluster become
+    clusters of their own (:func:`_regrouped`).
     """
     classes = label_map(clustering.labels, assignment.labels)
     own = evidence[np.arange(len(classes)), np.maximum(classes, 0)]
     agree = np.where(classes >= 0, own, 0.0)
     total = evidence.sum(axis=1)
-    labels = clustering.labels.copy()
     drop = inconsistent(clustering.labels, classes, agree, total, cfg.assign.min_share_ratio)
-    labels[drop] = -1
-    used = np.bincount(labels[labels >= 0], minlength=clustering.n_clusters) > 0
-    regrouped = np.full(len(labels), -1, dtype=np.int64)
-    min_size = cfg.assign.regroup_min_gaussians
-    if min_size > 0 and radius > 0:
-        origin = np.where(drop, clustering.labels, -1)
-        regrouped = rejected_groups(means, origin, evidence, radius, min_size)
-    labels, centers = compact_labels(labels, clustering.centers)
+    origin = np.where(drop, clustering.labels, -1)
+    labels = np.where(drop, -1, clustering.labels)
+    kept = Clustering(labels, clustering.centers, clustering.scores)
+    if cfg.assign.regroup_min_gaussians > 0 and geometry[2] > 0 and drop.any():
+        kept, assignment = _regrouped(kept, assignment, origin, evidence, geometry, cfg)
+    used = np.bincount(kept.labels[kept.labels >= 0], minlength=kept.n_clusters) > 0
+    compact, centers = compact_labels(kept.labels, kept.centers)
     a = assignment
-    kept = Assignment(a.labels[used], a.scores[used], a.votes[used], a.n_views[used])
-    return Clustering(labels, centers, clustering.scores.copy()), kept, regrouped
+    kept_assignment = Assignment(a.labels[used], a.scores[used], a.votes[used], a.n_views[used])
+    return Clustering(compact, centers, clustering.scores.copy()), kept_assignment
+
+
+def _regrouped(
+    clustering: Clustering,
+    assignment: Assignment,
+    origin: NDArray[np.int64],
+    evidence: NDArray[np.float64],
+    geometry: Geometry,
+    cfg: PipelineConfig,
+) -> tuple[Clustering, Assignment]:
+    """``clustering`` and ``assignment`` with each touching group of Gaussians that left one
+    cluster (``origin``; :func:`~dcseg.assign.consistency.rejected_groups`) appended as a
+    cluster: its centre is its Gaussians' mean feature (unit norm), its class the one its
+    pooled evidence supports most, its score that class's share of the pooled evidence; it
+    has no IoU votes (``votes`` row 0, ``n_views`` 0). Groups of a stuff class stay noise
+    (completion gives them their neighbours' class): at heavy noise they were pieces of
+    tables whose confused evidence said floor, and became 50-Gaussian "floor" regions."""
+    features, means, radius, stuff = geometry
+    groups = rejected_groups(means, origin, evidence, radius, cfg.assign.regroup_min_gaussians)
+    groups = groups.only(~np.isin(groups.classes, stuff))
+    g = len(groups.classes)
+    if g == 0:
+        return clustering, assignment
+    member = groups.ids >= 0
+    feats = as_numpy(features, np.float64)[member]
+    centers = np.zeros((g, feats.shape[1]))
+    np.add.at(centers, groups.ids[member], feats)
+    centers /= np.maximum(np.linalg.norm(centers, axis=1, keepdims=True), 1e-12)
+    k = clustering.n_clusters
+    labels = np.where(member, k + groups.ids, clustering.labels)
+    all_centers = np.concatenate([clustering.centers, centers.astype(np.float32)])
+    a = assignment
+    grown = Assignment(
+        np.concatenate([a.labels, groups.classes]),
+        np.concatenate([a.scores, groups.shares]),
+        np.concatenate([a.votes, np.zeros((g, a.votes.shape[1]))]),
+        np.concatenate([a.n_views, np.zeros(g, dtype=np.int64)]),
+    )
+    return Clustering(labels, all_centers, clustering.scores), grown
 
 
 def evaluate_segmentation(

@@ -13,7 +13,7 @@ alike, so they stay.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -149,19 +149,41 @@ def unsupported(
     return weak
 
 
+class Groups(NamedTuple):
+    """Touching groups of Gaussians that left one cluster (:func:`rejected_groups`).
+
+    Attributes:
+        ids: ``[N]`` int64 group of every Gaussian, ``0..G-1``; -1 = in none.
+        classes: ``[G]`` int64 the class each group's pooled evidence supports most.
+        shares: ``[G]`` float64 that class's share of the group's pooled evidence.
+    """
+
+    ids: NDArray[np.int64]
+    classes: NDArray[np.int64]
+    shares: NDArray[np.float64]
+
+    def only(self, keep: NDArray[np.bool_]) -> Groups:
+        """The groups where ``keep`` (``[G]``) is true, renumbered ``0..``; the rest in none."""
+        number = np.cumsum(keep) - 1
+        inside = self.ids >= 0
+        ids = np.full(len(self.ids), -1, dtype=np.int64)
+        ids[inside] = np.where(keep[self.ids[inside]], number[self.ids[inside]], -1)
+        return Groups(ids, self.classes[keep], self.shares[keep])
+
+
 def rejected_groups(
     means: NDArray[np.floating[Any]],
     origin: NDArray[np.integer[Any]],
     evidence: NDArray[np.floating[Any]],
     radius: float,
     min_size: int,
-) -> NDArray[np.int64]:
-    """Class of each connected group of Gaussians that one cluster's evidence test rejected.
+) -> Groups:
+    """Connected groups of Gaussians that one cluster's evidence test rejected, with a class.
 
     ``origin`` is the cluster a Gaussian left (-1 = it left none). Gaussians that left the same
-    cluster and lie within ``radius`` of each other form groups; a group of at least
-    ``min_size`` takes the class its pooled evidence supports most, the rest -1 (a group
-    with no evidence at all too). Used after the consistency step
+    cluster and lie within ``radius`` of each other are connected; a connected group of at
+    least ``min_size`` with any evidence is kept and takes the class its pooled evidence
+    supports most; the rest are in no group. Used after the consistency step
     (``AssignConfig.regroup_min_gaussians``): an object that the class-agnostic masks merged
     with its support leaves the support's cluster as one such group.
 
@@ -172,8 +194,12 @@ def rejected_groups(
         radius: > 0; Gaussians closer than this touch.
         min_size: >= 1.
 
-    Returns:
-        ``[N]`` int64 class per Gaussian, -1 outside the kept groups.
+    Example:
+        >>> means = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5.0, 0, 0]])
+        >>> ev = np.array([[0.0, 1.0], [0.2, 0.8], [0.5, 0.5], [1.0, 0.0]])
+        >>> g = rejected_groups(means, np.array([0, 0, 0, 0]), ev, radius=0.15, min_size=2)
+        >>> g.ids.tolist(), g.classes.tolist(), g.shares.round(2).tolist()
+        ([0, 0, 0, -1], [1], [0.77])
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -190,18 +216,20 @@ def rejected_groups(
         )
     if radius <= 0 or min_size < 1:
         raise ValueError(f"radius must be > 0 and min_size >= 1, got {radius} and {min_size}")
-    out = np.full(n, -1, dtype=np.int64)
+    ids = np.full(n, -1, dtype=np.int64)
     rows = np.flatnonzero(src >= 0)
     if len(rows) < min_size:
-        return out
-    xyz = points[rows]
-    pairs = cKDTree(xyz).query_pairs(radius, output_type="ndarray")
+        return Groups(ids, np.zeros(0, np.int64), np.zeros(0))
+    pairs = cKDTree(points[rows]).query_pairs(radius, output_type="ndarray")
     pairs = pairs[src[rows[pairs[:, 0]]] == src[rows[pairs[:, 1]]]]
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(rows),) * 2)
     _, comp = connected_components(graph, directed=False)
-    sizes = np.bincount(comp)
-    pooled = np.zeros((len(sizes), ev.shape[1]))
+    pooled = np.zeros((int(comp.max()) + 1, ev.shape[1]))
     np.add.at(pooled, comp, ev[rows])
-    big = (sizes >= min_size) & (pooled.sum(axis=1) > 0)
-    out[rows] = np.where(big[comp], pooled.argmax(axis=1)[comp], -1)
-    return out
+    total = pooled.sum(axis=1)
+    kept = (np.bincount(comp) >= min_size) & (total > 0)
+    number = np.cumsum(kept) - 1
+    ids[rows] = np.where(kept[comp], number[comp], -1)
+    classes = pooled[kept].argmax(axis=1).astype(np.int64)
+    shares = pooled[kept].max(axis=1) / total[kept]
+    return Groups(ids, classes, shares)

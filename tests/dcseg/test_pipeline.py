@@ -242,12 +242,13 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
         return segment_scene(saved.trained, saved.semantic, n_classes, replace(base, assign=assign))
 
     plain, refined = segment(0.0), segment(0.9)
-    # Regrouping gives classes back to some of the Gaussians that left, never to others, and
-    # leaves the cluster level as it is.
+    # Regrouping makes clusters (numbered after the kept ones) of some of the Gaussians that
+    # left, with a class; every other Gaussian keeps its cluster and class.
     grouped = segment(0.9, regroup=5)
-    assert np.array_equal(grouped.clustering.labels, refined.clustering.labels)
-    changed = grouped.semantic_ids != refined.semantic_ids
-    assert changed.any() and (refined.semantic_ids[changed] == -1).all()
+    new = grouped.clustering.labels >= refined.n_clusters
+    assert new.any() and (refined.clustering.labels[new] == -1).all()
+    assert np.array_equal(grouped.clustering.labels[~new], refined.clustering.labels[~new])
+    assert np.array_equal(grouped.semantic_ids != refined.semantic_ids, new)
     before, after = plain.semantic_ids, refined.semantic_ids
     dropped = (before >= 0) & (after < 0)
     assert dropped.any(), "a 0.9 ratio must drop some Gaussians on this scene"

@@ -56,7 +56,8 @@ def fixed_clusters(monkeypatch: pytest.MonkeyPatch) -> None:
     def clusters(*args: Any, **kwargs: Any) -> Clustering:
         return Clustering(CLUSTERS.copy(), centers, np.ones(N, dtype=np.float32))
 
-    monkeypatch.setattr("dcseg.pipeline.gated_features", lambda affinity, scale: None)
+    features = np.tile(np.array([1.0, 0.0], np.float32), (N, 1))
+    monkeypatch.setattr("dcseg.pipeline.gated_features", lambda affinity, scale: features)
     monkeypatch.setattr("dcseg.pipeline.cluster_features", clusters)
 
 
@@ -181,7 +182,7 @@ def one_cluster(monkeypatch: pytest.MonkeyPatch) -> None:
 
     def fixed(*args: Any, **kwargs: Any) -> Clustering:
         return Clustering(
-            np.zeros(N, np.int64), np.eye(1, dtype=np.float32), np.ones(N, np.float32)
+            np.zeros(N, np.int64), np.eye(1, 2, dtype=np.float32), np.ones(N, np.float32)
         )
 
     monkeypatch.setattr("dcseg.pipeline.cluster_features", fixed)
@@ -193,17 +194,23 @@ def test_an_object_that_leaves_its_support_cluster_keeps_its_class(
 ) -> None:
     """A duck on a tray, merged into one cluster by the class-agnostic masks: Gaussians 4-6 sit
     on class-1 pixels of a cluster voted class 0. They leave it (consistency step); as a
-    touching group of 3 they keep class 1 when ``regroup_min_gaussians`` <= 3. Otherwise they
-    are noise, and completion from the tray around them gives them the tray's class."""
+    touching group of 3 they become a cluster of class 1 when ``regroup_min_gaussians`` <= 3.
+    Otherwise they are noise, and completion from the tray around them gives them the tray's
+    class."""
     one_cluster(monkeypatch)
     trained = scene()
     classes = np.array([[0] * 4 + [1] * 3 + [0] * 5], dtype=np.int32)
     semantic = {v.name: SemanticMap(v.name, classes) for v in trained.views}
     cfg = config("gaussians", regroup_min_gaussians=min_size)
     seg = segment_scene(trained, semantic, 2, cfg)
-    assert seg.assignment.labels.tolist() == [0]
     assert seg.semantic_ids.tolist() == [0] * 4 + [duck] * 3 + [0] * 5
-    assert (seg.clustering.labels[4:7] == -1).all()  # the cluster level keeps them out
+    if duck:  # the group is a cluster of its own, class 1 by all of its evidence
+        assert seg.clustering.labels.tolist() == [0] * 4 + [1] * 3 + [0] * 5
+        assert seg.assignment.labels.tolist() == [0, 1]
+        assert seg.assignment.scores[1] == 1.0 and seg.assignment.n_views[1] == 0
+    else:
+        assert (seg.clustering.labels[4:7] == -1).all()
+        assert seg.assignment.labels.tolist() == [0]
 
 
 @pytest.mark.parametrize(("support", "floor"), [(0.1, 0), (0.0, 1)])

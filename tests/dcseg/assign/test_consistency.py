@@ -120,19 +120,21 @@ def test_rejected_groups_keep_the_class_their_evidence_pools_to() -> None:
     origin = np.array([0, 0, 0, 0, 0, 0, 1, 1, -1])
     evidence = np.array([[0.0, 1.0]] * 3 + [[0.9, 0.1]] + [[1.0, 0.0]] * 5)
     groups = rejected_groups(means, origin, evidence, radius=0.15, min_size=3)
-    assert groups.tolist() == [1, 1, 1, 1, -1, -1, -1, -1, -1]
-    assert rejected_groups(means, origin, evidence, radius=0.15, min_size=2).tolist() == [
-        1, 1, 1, 1, 0, 0, 0, 0, -1
-    ]  # fmt: skip
+    assert groups.ids.tolist() == [0, 0, 0, 0, -1, -1, -1, -1, -1]
+    assert groups.classes.tolist() == [1]
+    assert groups.shares == pytest.approx([3.1 / 4])
+    smaller = rejected_groups(means, origin, evidence, radius=0.15, min_size=2)
+    assert smaller.ids.tolist() == [0, 0, 0, 0, 1, 1, 2, 2, -1]
+    assert smaller.classes.tolist() == [1, 0, 0]
 
 
 def test_rejected_groups_without_evidence_or_members_stay_unlabelled() -> None:
     means = np.zeros((3, 3))
     means[:, 0] = [0.0, 0.1, 0.2]
     unseen = rejected_groups(means, np.zeros(3, int), np.zeros((3, 2)), 0.15, min_size=1)
-    assert unseen.tolist() == [-1, -1, -1]
+    assert unseen.ids.tolist() == [-1, -1, -1] and len(unseen.classes) == 0
     none_left = rejected_groups(means, np.full(3, -1), np.ones((3, 2)), 0.15, min_size=1)
-    assert none_left.tolist() == [-1, -1, -1]
+    assert none_left.ids.tolist() == [-1, -1, -1] and len(none_left.classes) == 0
 
 
 def test_exception_rejected_groups_shapes_and_settings() -> None:

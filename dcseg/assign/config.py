@@ -53,11 +53,12 @@ class AssignConfig:
             heavy layout 1 unchanged (the groups below act there).
         regroup_min_gaussians: Gaussians that the consistency step takes out of one cluster
             and that touch each other (contact radius, ``contact_factor``) form groups; a
-            group of at least this many keeps a class, the one its pooled evidence supports
-            most (:func:`dcseg.assign.consistency.rejected_groups`); smaller groups stay
-            noise for completion to fill; 0 = off. SAM-style masks merge an object with its
-            support (a duck on a tray): the cluster is voted tray, the duck's Gaussians leave
-            it, and completion from the tray around them gave them tray again. Off / 20 / 50
+            group of at least this many becomes a cluster of the class its pooled evidence
+            supports most (:func:`dcseg.assign.consistency.rejected_groups`), so it is an
+            object instance; smaller groups, and groups of a stuff class, stay noise for
+            completion to fill; 0 = off. SAM-style masks merge an object with its support (a
+            duck on a tray): the cluster is voted tray, the duck's Gaussians leave it, and
+            completion from the tray around them gave them tray again. Off / 20 / 50
             / 100, 3D labels, layouts 0-2 (seeds 0/10): realistic layout 1 36.6 / 39.5 / 40.3
             / 39.3, layout 2 35.8 / 36.2 / 36.4 / -, layout 0 47.8 / 47.8 / 47.8 / 47.6;
             heavy layout 1 62.5 / 65.3 / 65.7 / 65.7.

@@ -21,6 +21,7 @@ from dcseg.assign.consistency import (
     inconsistent,
     mask_agreement,
     rejected_groups,
+    spread,
     unsupported,
 )
 from dcseg.assign.instances import Instances, adopt_fragments, object_instances
@@ -263,7 +264,7 @@ def segment_scene(
     evidence = _scene_evidence(trained, semantic, n_classes) if needed else None
     agreement = float("nan")
     if evidence is not None:
-        assignment = _supported(evidence, clustering, assignment, cfg, on_progress)
+        assignment = _supported(evidence, clustering, assignment, g.means, cfg, on_progress)
         agreement = mask_agreement(label_map(clustering.labels, assignment.labels), evidence)
     cfg, trusted = _trusting(cfg, agreement)
     if agreement == agreement:
@@ -303,15 +304,22 @@ def _supported(
     evidence: NDArray[np.float64],
     clustering: Clustering,
     assignment: Assignment,
+    means: Any,
     cfg: PipelineConfig,
     on_progress: Progress,
 ) -> Assignment:
     """``assignment`` with each vote that its cluster's own pooled evidence does not support
     (:func:`~dcseg.assign.consistency.unsupported`, ``cfg.assign.min_cluster_support``)
-    replaced by the class that evidence supports most; its score becomes that class's share
-    of the cluster's summed IoU votes (often 0: the masks' vote never reached it)."""
+    replaced by the class that evidence supports most, for clusters that span at least
+    ``cfg.assign.support_min_extent`` (:func:`~dcseg.assign.consistency.spread` of their
+    ``means``); its score becomes that class's share of the cluster's summed IoU votes (often
+    0: the masks' vote never reached it)."""
     a = assignment
     weak = unsupported(clustering.labels, a.labels, evidence, cfg.assign.min_cluster_support)
+    if weak.any():
+        xyz = as_numpy(means, np.float64)
+        for k in np.flatnonzero(weak):
+            weak[k] = spread(xyz[clustering.labels == k]) >= cfg.assign.support_min_extent
     if not weak.any():
         return a
     member = clustering.labels >= 0

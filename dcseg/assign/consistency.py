@@ -149,6 +149,22 @@ def unsupported(
     return weak
 
 
+def spread(points: NDArray[np.floating[Any]], tail: float = 5.0) -> float:
+    """Largest side of the box that holds ``points`` (``[M, 3]``) between their ``tail`` and
+    ``100 - tail`` percentiles per axis: a cluster's size, blind to a few stray Gaussians.
+
+    Example:
+        >>> xyz = np.zeros((101, 3)); xyz[:, 0] = np.linspace(0.0, 2.0, 101); xyz[0, 1] = 50.0
+        >>> round(spread(xyz), 2)
+        1.8
+    """
+    xyz = np.asarray(points, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3 or len(xyz) == 0:
+        raise ValueError(f"points must be [M, 3] with M >= 1, got {xyz.shape}")
+    low, high = np.percentile(xyz, [tail, 100.0 - tail], axis=0)
+    return float((high - low).max())
+
+
 class Groups(NamedTuple):
     """Touching groups of Gaussians that left one cluster (:func:`rejected_groups`).
 

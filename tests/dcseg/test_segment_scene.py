@@ -213,14 +213,18 @@ def test_an_object_that_leaves_its_support_cluster_keeps_its_class(
         assert seg.assignment.labels.tolist() == [0]
 
 
-@pytest.mark.parametrize(("support", "floor"), [(0.1, 0), (0.0, 1)])
+@pytest.mark.parametrize(
+    ("support", "extent", "floor"), [(0.1, 0.5, 0), (0.0, 0.5, 1), (0.1, 7.0, 1)]
+)
 def test_a_vote_its_cluster_evidence_does_not_support_takes_the_supported_class(
-    monkeypatch: pytest.MonkeyPatch, support: float, floor: int
+    monkeypatch: pytest.MonkeyPatch, support: float, extent: float, floor: int
 ) -> None:
     """Cluster 0 (Gaussians 0-7, all on class-0 pixels; the fixture's clusters and a map with
     classes 0 | 1 at pixels 0-7 | 8-11) voted class 1 by the masks: its own evidence gives
     class 1 nothing, so with ``min_cluster_support`` > 0 it takes class 0. With 0 the vote
-    stands, and no Gaussian of the cluster leaves it (none has a share below the cluster's)."""
+    stands, and no Gaussian of the cluster leaves it (none has a share below the cluster's).
+    The cluster spans 7 units less its tails (6.3): with ``support_min_extent`` 7 it counts
+    as a small object that the maps may miss, and its vote stands too."""
 
     def voted(*args: Any, **kwargs: Any) -> Assignment:
         return Assignment(np.array([1, 1]), np.ones(2), np.array([[0.0, 2.0], [0.0, 2.0]]),
@@ -230,8 +234,9 @@ def test_a_vote_its_cluster_evidence_does_not_support_takes_the_supported_class(
     trained = scene()
     classes = np.array([[0] * 8 + [1] * 4], dtype=np.int32)
     semantic = {v.name: SemanticMap(v.name, classes) for v in trained.views}
-    seg = segment_scene(trained, semantic, 2, config("gaussians", min_cluster_support=support))
+    cfg = config("gaussians", min_cluster_support=support, support_min_extent=extent)
+    seg = segment_scene(trained, semantic, 2, cfg)
     assert seg.assignment.labels.tolist() == [floor, 1]
     assert seg.semantic_ids.tolist() == [floor] * 8 + [1] * 4
     # the new class's share of the cluster's votes: the masks never voted class 0 for it
-    assert seg.assignment.scores[0] == (0.0 if support else 1.0)
+    assert seg.assignment.scores[0] == (1.0 if floor else 0.0)

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from dcseg.assign.config import AssignConfig
-from dcseg.assign.consistency import inconsistent, mask_agreement, rejected_groups, unsupported
+from dcseg.assign.consistency import (
+    inconsistent,
+    mask_agreement,
+    rejected_groups,
+    spread,
+    unsupported,
+)
 
 
 def test_far_below_the_cluster_share_is_inconsistent() -> None:
@@ -71,9 +77,11 @@ def test_mask_agreement_weighs_evidence_of_labelled_gaussians_only() -> None:
 @pytest.mark.parametrize(
     "field, value",
     [("trust_agreement", 1.5), ("trust_agreement", -0.1), ("trusted_share_ratio", 2.0),
-     ("trusted_evidence_weight", -1.0)],
+     ("trusted_evidence_weight", -1.0), ("min_cluster_support", 1.5),
+     ("min_cluster_support", -0.1), ("support_min_extent", -1.0),
+     ("support_min_extent", float("nan")), ("regroup_min_gaussians", -1)],
 )  # fmt: skip
-def test_trust_settings_are_checked(field: str, value: float) -> None:
+def test_trust_support_and_regroup_settings_are_checked(field: str, value: float) -> None:
     changes: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
         AssignConfig(**changes)
@@ -142,3 +150,13 @@ def test_exception_rejected_groups_shapes_and_settings() -> None:
         rejected_groups(np.zeros((3, 2)), np.zeros(3, int), np.ones((3, 2)), 0.1, 1)
     with pytest.raises(ValueError, match="radius must be > 0 and min_size >= 1"):
         rejected_groups(np.zeros((3, 3)), np.zeros(3, int), np.ones((3, 2)), 0.1, 0)
+
+
+def test_spread_is_the_largest_side_without_the_tails() -> None:
+    rng = np.random.default_rng(0)
+    patch = rng.uniform([0.0, 0.0, 0.0], [2.0, 1.0, 0.01], size=(2000, 3))
+    assert spread(patch) == pytest.approx(1.8, abs=0.05)  # 5th to 95th percentile of 2 m
+    stray = np.vstack([patch[:200] * 0.01, [[30.0, 0.0, 0.0]]])  # a 2 cm object, one floater
+    assert spread(stray) < 0.03
+    with pytest.raises(ValueError, match=r"\[M, 3\] with M >= 1"):
+        spread(np.zeros((0, 3)))

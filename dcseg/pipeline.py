@@ -337,13 +337,15 @@ def _supported(
 
 def _trusting(cfg: PipelineConfig, agreement: float) -> tuple[PipelineConfig, bool]:
     """``cfg`` with the trusted-evidence settings when the masks agree enough
-    (``AssignConfig.trust_agreement``), and whether they did."""
+    (``AssignConfig.trust_agreement``), and whether they did. Trusted, no group of Gaussians
+    is regrouped: each follows its own evidence in completion."""
     a = cfg.assign
     if a.trust_agreement is None or not agreement >= a.trust_agreement:
         return cfg, False
     trusted = replace(
-        a, min_share_ratio=a.trusted_share_ratio, evidence_weight=a.trusted_evidence_weight
-    )
+        a, min_share_ratio=a.trusted_share_ratio, evidence_weight=a.trusted_evidence_weight,
+        regroup_min_gaussians=0,
+    )  # fmt: skip
     return replace(cfg, assign=trusted), True
 
 

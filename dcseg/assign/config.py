@@ -45,30 +45,35 @@ class AssignConfig:
             instead (:func:`dcseg.assign.consistency.unsupported`); 0 = every vote stands.
             The vote matches whole cluster masks by IoU: when bigger clusters take a small
             object's replicas in a view, a floor cluster beside it can win the object's class
-            in a few views. On realistic layout 1 (clustering seed 0) a 1316-Gaussian floor
-            cluster was voted ``domino`` with domino 0.3 % of its own evidence; wrong votes had
-            ratios up to 0.03, correct look-alike votes 0.48 and more, a rare class at heavy
-            noise about 0.35. 0.05, 0.1 and 0.2 scored the same on layouts 0-2; off / on, 3D
-            labels, clustering seeds 0/10: realistic layout 0 43.3 / 47.8, layouts 1-2 and
-            heavy layout 1 unchanged (the groups below act there).
+            in a few views. Realistic masks, clustering seed 10 of layout 0: a 248-Gaussian
+            floor patch 2.4 m across voted ``ball`` with ball 2.6 % of its own evidence
+            (relabelling it: 42.8 -> 47.3 3D mIoU). Wrong votes had ratios 0.004-0.09,
+            correct look-alike votes 0.38 and more; 0.05, 0.1 and 0.2 scored the same on
+            the tuning layouts (seeds 0/10).
         support_min_extent: ... only for clusters that span at least this (metres; the
             largest side of their centres' box between the 5th and 95th percentiles,
             :func:`dcseg.assign.consistency.spread`); smaller clusters keep their vote. A rare
             small object that the class maps miss in most views has little evidence of its
             own class: on heavy layout 0 two lego clusters (21 and 28 Gaussians, ratio
-            0.04-0.05) were the only lego found, and relabelling them cost 4.7 mIoU. The wrong
-            votes were surface patches spanning 1-2.5 m (223-1316 Gaussians).
+            0.04-0.05) were the only lego found, and relabelling them cost 4.7 mIoU. The
+            wrong votes were surface patches spanning 1-2.5 m (223-1316 Gaussians).
         regroup_min_gaussians: Gaussians that the consistency step takes out of one cluster
             and that touch each other (contact radius, ``contact_factor``) form groups; a
             group of at least this many becomes a cluster of the class its pooled evidence
             supports most (:func:`dcseg.assign.consistency.rejected_groups`), so it is an
             object instance; smaller groups, and groups of a stuff class, stay noise for
             completion to fill; 0 = off. SAM-style masks merge an object with its support (a
-            duck on a tray): the cluster is voted tray, the duck's Gaussians leave it, and
-            completion from the tray around them gave them tray again. Off / 20 / 50
-            / 100, 3D labels, layouts 0-2 (seeds 0/10): realistic layout 1 36.6 / 39.5 / 40.3
-            / 39.3, layout 2 35.8 / 36.2 / 36.4 / -, layout 0 47.8 / 47.8 / 47.8 / 47.6;
-            heavy layout 1 62.5 / 65.3 / 65.7 / 65.7.
+            duck on a tray, blocks on a table): the cluster is voted for the support, the
+            object's Gaussians leave it, and completion from the support around them gave
+            them its class again. Off when the evidence is trusted (``trust_agreement``): a
+            group pools to one class, so on clean layout 2 a group of table and domino
+            Gaussians made the domino table (96 -> 79 IoU), where completion gives each
+            Gaussian its own evidence's class. Sizes 20 / 50 / 100 on realistic layouts 0-1
+            and heavy layout 1: 50 best or tied. Both steps, off -> on, 3D labels on layouts
+            0-2 (``benchmarks/README.md``): default +0.2 / -0.4 / +6.4, heavy +0.4 / +6.4 /
+            -0.6, realistic +1.8 / +4.4 / -0.6, clean unchanged. A group is only as right as
+            its pooled evidence: on default layout 1 a group of ball Gaussians whose
+            look-alike evidence said bowl became a bowl.
         objects: turn clusters into object instances (:mod:`dcseg.assign.instances`); False =
             one instance per cluster (the paper). Clusters stay available as the cluster level.
         contact_factor: two Gaussians touch when their centres are closer than this many times

@@ -12,6 +12,7 @@ from dcseg.assign.config import AssignConfig
 from dcseg.assign.instances import (
     Instances,
     adopt_fragments,
+    adopt_unlabelled,
     cluster_contacts,
     drop_fragments,
     object_instances,
@@ -272,3 +273,21 @@ def test_drop_fragments_keeps_every_object_when_off_or_alone() -> None:
     assert drop_fragments(group, semantic, stuff, 0.0).tolist() == group.tolist()
     stuff[DUCK] = True
     assert drop_fragments(group, semantic, stuff, 0.1).tolist() == group.tolist()
+
+
+@pytest.mark.parametrize(("weight", "adopted", "parent"), [(1.0, DUCK, 0), (10.0, FLOOR, -1)])
+def test_an_unlabelled_cluster_weighs_its_own_evidence_against_its_neighbours(
+    weight: float, adopted: int, parent: int
+) -> None:
+    """Cluster 1 touches only cluster 0 (a duck, 6 contacts); its own pooled evidence is
+    floor 0.8 / duck 0.2. As completion does, it takes the class that maximises neighbour
+    share + weight x own share, a class no neighbour has included: with weight 1 the duck
+    (1 + 0.2 against 0.8) and it joins cluster 0; with weight 10 (trusted evidence) floor
+    (8 against 3), joining no one."""
+    classes = np.array([DUCK, -1])
+    pairs, counts = np.array([[0, 1]]), np.array([6])
+    pooled = np.array([[0.0, 0.0, 5.0, 0.0], [0.0, 4.0, 1.0, 0.0]])
+    cfg = replace(AssignConfig(), evidence_weight=weight)
+    out, parents = adopt_unlabelled(classes, pairs, counts, pooled, cfg)
+    assert out.tolist() == [DUCK, adopted]
+    assert parents.tolist() == [-1, parent]

@@ -20,6 +20,7 @@ from dcseg.assign.completion import complete_labels
 from dcseg.assign.consistency import (
     inconsistent,
     mask_agreement,
+    pooled_evidence,
     rejected_groups,
     spread,
     unsupported,
@@ -263,8 +264,9 @@ def segment_scene(
     # one pass over the views' blending weights serves the consistency step and the objects
     evidence = _scene_evidence(trained, semantic, n_classes) if needed else None
     agreement = float("nan")
+    means = as_numpy(g.means, np.float64)
     if evidence is not None:
-        assignment = _supported(evidence, clustering, assignment, g.means, cfg, on_progress)
+        assignment = _supported(evidence, clustering, assignment, means, cfg, on_progress)
         agreement = mask_agreement(label_map(clustering.labels, assignment.labels), evidence)
     cfg, trusted = _trusting(cfg, agreement)
     if agreement == agreement:
@@ -272,16 +274,15 @@ def segment_scene(
         on_progress("assign", 1.0, f"mask agreement {agreement:.3f}: {trust}")
     a = cfg.assign
     refine = a.min_share_ratio > 0 and bool(labelled) and evidence is not None
-    means = trained.gaussians.means.detach().cpu().numpy().astype(np.float64)
     radius = adaptive_radius(means, a.contact_factor, seed=cfg.seed)
+    stuff = _stuff_ids(class_names, a.stuff_classes)
     if refine and evidence is not None:
-        stuff = _stuff_ids(class_names, a.stuff_classes)
         clustering, assignment = _drop_inconsistent(
             evidence, clustering, assignment, (features, means, radius, stuff), cfg
         )
     semantic_ids = label_map(clustering.labels, assignment.labels)
     instances, semantic_ids = _objects(
-        means, radius, evidence, clustering, assignment, semantic_ids, cfg, class_names
+        means, radius, evidence, clustering, assignment, semantic_ids, cfg, stuff
     )
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
     if a.maps_from == "gaussians":
@@ -304,7 +305,7 @@ def _supported(
     evidence: NDArray[np.float64],
     clustering: Clustering,
     assignment: Assignment,
-    means: Any,
+    means: NDArray[np.float64],
     cfg: PipelineConfig,
     on_progress: Progress,
 ) -> Assignment:
@@ -315,16 +316,12 @@ def _supported(
     ``means``); its score becomes that class's share of the cluster's summed IoU votes (often
     0: the masks' vote never reached it)."""
     a = assignment
-    weak = unsupported(clustering.labels, a.labels, evidence, cfg.assign.min_cluster_support)
-    if weak.any():
-        xyz = as_numpy(means, np.float64)
-        for k in np.flatnonzero(weak):
-            weak[k] = spread(xyz[clustering.labels == k]) >= cfg.assign.support_min_extent
+    pooled = pooled_evidence(clustering.labels, evidence, len(a.labels))
+    weak = unsupported(pooled, a.labels, cfg.assign.min_cluster_support)
+    for k in np.flatnonzero(weak):
+        weak[k] = spread(means[clustering.labels == k]) >= cfg.assign.support_min_extent
     if not weak.any():
         return a
-    member = clustering.labels >= 0
-    pooled = np.zeros((len(a.labels), evidence.shape[1]))
-    np.add.at(pooled, clustering.labels[member], evidence[member])
     labels = a.labels.copy()
     labels[weak] = pooled[weak].argmax(axis=1)
     on_progress("assign", 1.0, f"{int(weak.sum())} votes unsupported by their clusters' evidence")
@@ -366,12 +363,13 @@ def _objects(
     assignment: Assignment,
     semantic_ids: NDArray[np.int64],
     cfg: PipelineConfig,
-    class_names: Sequence[str],
+    stuff: Sequence[int],
 ) -> tuple[Instances, NDArray[np.int64]]:
     """Adopt unlabelled clusters, complete labels, and build object instances.
 
     ``means`` are the Gaussians' centres and ``radius`` the contact radius
-    (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.assign.contact_factor``).
+    (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.assign.contact_factor``); ``stuff``
+    the vocabulary's stuff classes.
     """
     a = cfg.assign
     labels = clustering.labels
@@ -386,7 +384,6 @@ def _objects(
         )  # fmt: skip
     if not a.objects:
         return _per_cluster(labels, assignment), ids
-    stuff = _stuff_ids(class_names, a.stuff_classes)
     instances = object_instances(
         means, labels, ids, fragments, clustering.centers, assignment.votes,
         assignment.scores, stuff, radius, a,

@@ -100,51 +100,60 @@ def mask_agreement(classes: NDArray[np.integer[Any]], evidence: NDArray[np.float
     return float(ev[rows, labels[rows]].sum() / total)
 
 
+def pooled_evidence(
+    labels: NDArray[np.integer[Any]], evidence: NDArray[np.floating[Any]], k: int
+) -> NDArray[np.float64]:
+    """``[k, C]`` class evidence summed over the Gaussians of each group ``0..k-1`` (``labels``
+    ``[N]``; -1 = in none).
+
+    Example:
+        >>> pooled_evidence(np.array([0, 1, 0, -1]), np.eye(4, 2), 2).tolist()
+        [[1.0, 0.0], [0.0, 1.0]]
+    """
+    ids = np.asarray(labels, dtype=np.int64)
+    ev = np.asarray(evidence, dtype=np.float64)
+    out = np.zeros((k, ev.shape[1]))
+    member = ids >= 0
+    np.add.at(out, ids[member], ev[member])
+    return out
+
+
 def unsupported(
-    cluster_labels: NDArray[np.integer[Any]],
+    pooled: NDArray[np.floating[Any]],
     assigned: NDArray[np.integer[Any]],
-    evidence: NDArray[np.floating[Any]],
     min_support: float,
 ) -> NDArray[np.bool_]:
     """Which labelled clusters their own pooled class evidence does not support.
 
-    A cluster's pooled evidence is its Gaussians' class evidence summed. Its voted class is
-    unsupported when that class gets less than ``min_support`` x the pooled evidence of the
-    cluster's best-supported class. The vote matches whole cluster masks by IoU, and when a
-    class's replicas per view are taken by bigger clusters, a surface cluster beside a small
-    object can win the object's class in a few views and never its own: a 1300-Gaussian floor
-    patch voted ``domino`` whose own evidence gives domino 0.3 % of its weight. A rare object
-    missed in most views keeps a share well above such a floor (each view that sees it counts).
+    A cluster's pooled evidence is its Gaussians' class evidence summed
+    (:func:`pooled_evidence`). Its voted class is unsupported when that class gets less than
+    ``min_support`` x the pooled evidence of the cluster's best-supported class. The vote
+    matches whole cluster masks by IoU, and when a class's replicas per view are taken by
+    bigger clusters, a surface cluster beside a small object can win the object's class in a
+    few views and never its own: a 1300-Gaussian floor patch voted ``domino`` whose own
+    evidence gives domino 0.3 % of its weight.
 
     Args:
-        cluster_labels: ``[N]`` cluster of every Gaussian, -1 = noise.
+        pooled: ``[K, C]`` pooled class evidence of every cluster.
         assigned: ``[K]`` class of every cluster, -1 = none (never unsupported).
-        evidence: ``[N, C]`` class evidence per Gaussian (:func:`dcseg.segment.class_evidence`).
         min_support: in [0, 1]; 0 = every vote stands.
 
     Returns:
         ``[K]`` bool.
 
     Example:
-        >>> ev = np.array([[0.0, 5.0], [0.1, 4.0], [3.0, 1.0]])
-        >>> unsupported(np.array([0, 0, 1]), np.array([0, 0]), ev, 0.1).tolist()
+        >>> pooled = np.array([[0.1, 9.0], [3.0, 1.0]])
+        >>> unsupported(pooled, np.array([0, 0]), 0.1).tolist()
         [True, False]
     """
     if not 0.0 <= min_support <= 1.0:
         raise ValueError(f"min_support must be in [0, 1], got {min_support}")
-    labels = np.asarray(cluster_labels, dtype=np.int64)
+    ev = np.asarray(pooled, dtype=np.float64)
     classes = np.asarray(assigned, dtype=np.int64)
-    ev = np.asarray(evidence, dtype=np.float64)
-    if ev.ndim != 2 or labels.shape != (len(ev),) or classes.ndim != 1:
-        raise ValueError(
-            f"cluster_labels {labels.shape}, assigned {classes.shape} and evidence "
-            f"{ev.shape} must be [N], [K] and [N, C]"
-        )
-    member = (labels >= 0) & (labels < len(classes))
-    pooled = np.zeros((len(classes), ev.shape[1]))
-    np.add.at(pooled, labels[member], ev[member])
-    voted = pooled[np.arange(len(classes)), np.maximum(classes, 0)]
-    best = pooled.max(axis=1, initial=0.0)
+    if ev.ndim != 2 or classes.shape != (len(ev),):
+        raise ValueError(f"pooled {ev.shape} and assigned {classes.shape} must be [K, C] and [K]")
+    voted = ev[np.arange(len(classes)), np.maximum(classes, 0)]
+    best = ev.max(axis=1, initial=0.0)
     weak: NDArray[np.bool_] = (classes >= 0) & (best > 0) & (voted < min_support * best)
     return weak
 
@@ -240,12 +249,9 @@ def rejected_groups(
     pairs = pairs[src[rows[pairs[:, 0]]] == src[rows[pairs[:, 1]]]]
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(rows),) * 2)
     _, comp = connected_components(graph, directed=False)
-    pooled = np.zeros((int(comp.max()) + 1, ev.shape[1]))
-    np.add.at(pooled, comp, ev[rows])
+    pooled = pooled_evidence(comp, ev[rows], int(comp.max()) + 1)
     total = pooled.sum(axis=1)
-    kept = (np.bincount(comp) >= min_size) & (total > 0)
-    number = np.cumsum(kept) - 1
-    ids[rows] = np.where(kept[comp], number[comp], -1)
-    classes = pooled[kept].argmax(axis=1).astype(np.int64)
-    shares = pooled[kept].max(axis=1) / total[kept]
-    return Groups(ids, classes, shares)
+    ids[rows] = comp
+    shares = np.divide(pooled.max(axis=1), total, out=np.zeros_like(total), where=total > 0)
+    every = Groups(ids, pooled.argmax(axis=1).astype(np.int64), shares)
+    return every.only((np.bincount(comp) >= min_size) & (total > 0))

@@ -42,6 +42,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from dcseg.assign.config import AssignConfig
+from dcseg.assign.consistency import pooled_evidence
 from dcseg.geometry import local_axes
 
 
@@ -291,7 +292,8 @@ def adopt_fragments(
     k = int(labels.max(initial=-1)) + 1
     classes = _cluster_classes(labels, semantic, k)
     pairs, counts = cluster_contacts(xyz, labels, radius, cfg.neighbours)
-    classes, parent = adopt_unlabelled(classes, pairs, counts, _pooled(labels, evidence, k), cfg)
+    pooled = pooled_evidence(labels, evidence, k)
+    classes, parent = adopt_unlabelled(classes, pairs, counts, pooled, cfg)
     out = np.asarray(semantic, dtype=np.int64).copy()
     fill = (labels >= 0) & (out < 0)
     out[fill] = classes[labels[fill]]
@@ -580,13 +582,6 @@ def _cluster_classes(labels: NDArray[np.int64], semantic: NDArray[np.int64], k: 
         table = np.bincount(labels[member] * c + semantic[member], minlength=k * c)
         table = table.reshape(k, c)
         out = np.where(table.sum(axis=1) > 0, table.argmax(axis=1), -1)
-    return out
-
-
-def _pooled(labels: NDArray[np.int64], evidence: NDArray[np.float64], k: int) -> Any:
-    out = np.zeros((k, evidence.shape[1]))
-    member = labels >= 0
-    np.add.at(out, labels[member], evidence[member])
     return out
 
 

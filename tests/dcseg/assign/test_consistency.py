@@ -11,6 +11,7 @@ from dcseg.assign.config import AssignConfig
 from dcseg.assign.consistency import (
     inconsistent,
     mask_agreement,
+    pooled_evidence,
     rejected_groups,
     spread,
     unsupported,
@@ -97,23 +98,25 @@ def test_floor_cluster_voted_as_an_object_is_unsupported() -> None:
         [[5.0, 0.0, 0.1], [4.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.6, 2.0], [0.0, 0.3, 1.0],
          [0.0, 0.0, 9.0]]
     )  # fmt: skip
-    assert unsupported(labels, assigned, evidence, 0.1).tolist() == [True, False]
-    assert unsupported(labels, assigned, evidence, 0.5).tolist() == [True, True]
-    assert not unsupported(labels, assigned, evidence, 0.0).any()
+    pooled = pooled_evidence(labels, evidence, 2)
+    assert unsupported(pooled, assigned, 0.1).tolist() == [True, False]
+    assert unsupported(pooled, assigned, 0.5).tolist() == [True, True]
+    assert not unsupported(pooled, assigned, 0.0).any()
 
 
 def test_unlabelled_and_unseen_clusters_are_never_unsupported() -> None:
     labels = np.array([0, 1, 2])
     evidence = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 3.0]])
     # cluster 0 unlabelled; cluster 1 seen by no class map; cluster 2 has no Gaussian at all
-    assert not unsupported(labels[:2], np.array([-1, 0, 1]), evidence[:2], 1.0).any()
+    pooled = pooled_evidence(labels[:2], evidence[:2], 3)
+    assert not unsupported(pooled, np.array([-1, 0, 1]), 1.0).any()
 
 
 def test_exception_unsupported_shapes_and_support() -> None:
     with pytest.raises(ValueError, match="min_support"):
-        unsupported(np.zeros(2, int), np.zeros(1, int), np.ones((2, 2)), 1.5)
-    with pytest.raises(ValueError, match=r"\[N\], \[K\] and \[N, C\]"):
-        unsupported(np.zeros(3, int), np.zeros(1, int), np.ones((2, 2)), 0.1)
+        unsupported(np.ones((1, 2)), np.zeros(1, int), 1.5)
+    with pytest.raises(ValueError, match=r"\[K, C\] and \[K\]"):
+        unsupported(np.ones((2, 2)), np.zeros(1, int), 0.1)
 
 
 def test_rejected_groups_keep_the_class_their_evidence_pools_to() -> None:

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from dcseg.affinity.data import AffinityResult
 from dcseg.blend import BlendWeights
 from dcseg.errors import InputError
+from dcseg.io.npz import read_stored
 
 STATE_VERSION = 2
 READABLE_VERSIONS = (1, 2)
@@ -301,13 +302,17 @@ def _read_blend(path: Path, width: int, height: int) -> BlendWeights:
 def _load_npz(
     path: Path, keys: Sequence[str], either: Sequence[str] = ()
 ) -> dict[str, NDArray[Any]]:
-    """The arrays ``keys`` (and the first of ``either`` present) of ``path``."""
+    """The arrays ``keys`` (and the first of ``either`` present) of ``path``: read straight
+    from the file (:func:`dcseg.io.npz.read_stored`), by :func:`numpy.load` when compressed."""
     try:
-        with np.load(path, allow_pickle=False) as data:
-            wanted = [*keys, *[k for k in either if k in data.files][:1]]
-            arrays = {k: np.asarray(data[k]) for k in wanted if k in data.files}
+        arrays = read_stored(path, [*keys, *either])
+        if arrays is None:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: np.asarray(data[k]) for k in [*keys, *either] if k in data.files}
     except (OSError, ValueError) as error:
         raise InputError.single(str(path), f"cannot read saved state: {error}") from None
+    for k in [k for k in either if k in arrays][1:]:
+        del arrays[k]
     missing = [k for k in keys if k not in arrays]
     if either and not any(k in arrays for k in either):
         missing.append(" or ".join(either))

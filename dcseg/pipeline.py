@@ -38,7 +38,7 @@ from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
-from dcseg.segment import class_evidence, cluster_map, label_map
+from dcseg.segment import EvidenceSum, cluster_map, label_map
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
 
 T = TypeVar("T")
@@ -252,17 +252,19 @@ def segment_scene(
     clustering = cluster_features(features, g.means, g.opacities(), cfg.cluster)
     k = int(clustering.centers.shape[0])
     on_progress("cluster", 1.0, f"{k} clusters")
-    maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress)
-    labelled = [name for name in maps if name in semantic]
+    a = cfg.assign
+    labelled = [v.name for v in trained.views if v.name in semantic]
+    needed = (a.min_share_ratio > 0 and bool(labelled)) or a.objects or a.complete
+    # the pass that renders the cluster maps also sums the class evidence that the
+    # consistency step and the objects use: each view's weights are read once for both
+    total = EvidenceSum(len(g.means), n_classes) if needed else None
+    maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, (total, semantic))
     assignment = assign_labels(
         [maps[n] for n in labelled], [semantic[n].classes for n in labelled], k, n_classes,
         cfg.assign,
     )  # fmt: skip
     on_progress("assign", 1.0, f"{int((assignment.labels >= 0).sum())} of {k} clusters labelled")
-    a = cfg.assign
-    needed = (a.min_share_ratio > 0 and bool(labelled)) or a.objects or a.complete
-    # one pass over the views' blending weights serves the consistency step and the objects
-    evidence = _scene_evidence(trained, semantic, n_classes) if needed else None
+    evidence = None if total is None else total.evidence
     agreement = float("nan")
     means = as_numpy(g.means, np.float64)
     if evidence is not None:
@@ -292,7 +294,7 @@ def segment_scene(
         )  # fmt: skip
     else:
         if refine:
-            maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, "refine")
+            maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, stage="refine")
         label_maps = {
             name: label_map(ids, assignment.labels).astype(np.int32) for name, ids in maps.items()
         }
@@ -346,15 +348,6 @@ def _trusting(cfg: PipelineConfig, agreement: float) -> tuple[PipelineConfig, bo
     return replace(cfg, assign=trusted), True
 
 
-def _scene_evidence(
-    trained: TrainedScene, semantic: Mapping[str, SemanticMap], n_classes: int
-) -> NDArray[np.float64]:
-    """``[N, C]`` class evidence of every Gaussian over the views that have class maps."""
-    views = [v for v in trained.views if v.name in semantic]
-    maps = [semantic[v.name].classes for v in views]
-    return class_evidence(_blends(views), maps, len(trained.gaussians.means), n_classes)
-
-
 def _objects(
     means: NDArray[np.float64],
     radius: float,
@@ -404,11 +397,18 @@ def _cluster_maps(
     cluster_labels: NDArray[np.int64],
     cfg: PipelineConfig,
     on_progress: Progress,
+    evidence: tuple[EvidenceSum | None, Mapping[str, SemanticMap]] | None = None,
     stage: str = "masks",
 ) -> dict[str, NDArray[np.int32]]:
+    """Every view's cluster map; with ``evidence`` = (a sum, the class-aware maps), the views
+    that have a class map also add their class evidence to the sum in the same pass."""
+    total, semantic = evidence if evidence is not None else (None, {})
     maps = {}
     for i, view in enumerate(views):
-        maps[view.name] = cluster_map(view.blend, cluster_labels, cfg.masks)
+        blend = view.blend  # read once: a view in the cache folder is loaded per access
+        maps[view.name] = cluster_map(blend, cluster_labels, cfg.masks)
+        if total is not None and view.name in semantic:
+            total.add(blend, semantic[view.name].classes)
         on_progress(stage, (i + 1) / len(views), f"view {view.name}")
     return maps
 
@@ -461,7 +461,7 @@ def _drop_inconsistent(
     """Gaussians contradicted by their own class evidence become noise; empty clusters go.
 
     ``agree`` (evidence for the Gaussian's cluster class) and ``total`` (for any class) are
-    read off ``evidence`` (:func:`_scene_evidence`): the sums that
+    read off ``evidence`` (summed with the first cluster maps): the sums that
     :func:`dcseg.segment.class_agreement` makes in a pass of its own. Touching groups of at
     least ``cfg.assign.regroup_min_gaussians`` of the Gaussians that left one cluster become
     clusters of their own (:func:`_regrouped`).

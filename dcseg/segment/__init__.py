@@ -13,10 +13,11 @@ from dcseg._lazy import lazy_exports
 
 if TYPE_CHECKING:
     from dcseg.segment.config import MaskConfig
-    from dcseg.segment.evidence import class_agreement, class_evidence, vote_3d
+    from dcseg.segment.evidence import EvidenceSum, class_agreement, class_evidence, vote_3d
     from dcseg.segment.maps import cluster_map, label_map
 
 __all__ = [
+    "EvidenceSum",
     "MaskConfig",
     "class_agreement",
     "class_evidence",
@@ -26,6 +27,7 @@ __all__ = [
 ]
 
 _HOME = {
+    "EvidenceSum": "dcseg.segment.evidence",
     "MaskConfig": "dcseg.segment.config",
     "class_agreement": "dcseg.segment.evidence",
     "class_evidence": "dcseg.segment.evidence",

@@ -167,6 +167,29 @@ def evidence_torch(
     return out.reshape(n, n_classes)
 
 
+class EvidenceSum:
+    """``[N, C]`` class evidence summed one view at a time (:func:`class_evidence`), so a pass
+    over the views that does other work per view (the pipeline's cluster maps) adds it without
+    reading the views' weights again."""
+
+    def __init__(self, n: int, n_classes: int) -> None:
+        self.n = n
+        self.evidence = np.zeros((n, n_classes))
+        self.views = 0
+
+    def add(self, blend: BlendWeights, class_map: NDArray[Any]) -> None:
+        """Add one view; errors name the view by its position in the sum."""
+        i, self.views = self.views, self.views + 1
+        try:
+            view = view_evidence(blend, class_map, self.evidence.shape[1]).cpu().numpy()
+        except ValueError as error:
+            raise ValueError(f"view {i}: {error}") from None
+        if view.shape[0] > self.n:
+            top = view.shape[0] - 1
+            raise ValueError(f"view {i}: Gaussian ids go up to {top} but n = {self.n}")
+        self.evidence[: view.shape[0]] += view
+
+
 def class_evidence(
     blends: Sequence[BlendWeights], class_maps: Sequence[NDArray[Any]], n: int, n_classes: int
 ) -> NDArray[np.float64]:
@@ -191,16 +214,10 @@ def class_evidence(
     """
     if len(blends) != len(class_maps):
         raise ValueError(f"{len(blends)} blending-weight views but {len(class_maps)} class maps")
-    evidence = np.zeros((n, n_classes))
-    for i, (blend, class_map) in enumerate(zip(blends, class_maps, strict=True)):
-        try:
-            view = view_evidence(blend, class_map, n_classes).cpu().numpy()
-        except ValueError as error:
-            raise ValueError(f"view {i}: {error}") from None
-        if view.shape[0] > n:
-            raise ValueError(f"view {i}: Gaussian ids go up to {view.shape[0] - 1} but n = {n}")
-        evidence[: view.shape[0]] += view
-    return evidence
+    total = EvidenceSum(n, n_classes)
+    for blend, class_map in zip(blends, class_maps, strict=True):
+        total.add(blend, class_map)
+    return total.evidence
 
 
 def vote_3d(evidence: NDArray[Any], min_evidence: float = 0.0) -> NDArray[np.int64]:

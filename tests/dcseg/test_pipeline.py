@@ -401,6 +401,31 @@ def test_a_cache_within_its_memory_budget_is_never_read_back(
     assert len(list((tmp_path / "run" / "state" / "views").glob("*.npz"))) == 6
 
 
+def test_segmentation_reads_each_view_twice(
+    run_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With no view held in memory, segmentation reads each view's weights twice: once for
+    the first cluster maps and the class evidence (one pass), once for the final cluster and
+    label maps; a third pass for the evidence alone is gone."""
+    import dcseg.io.run_state as run_state
+
+    saved = load_run(run_dir)
+    views = run_state.load_views(run_dir / "state")  # no memory: every access reads the file
+    trained = replace(saved.trained, views=views)
+    reads: list[Path] = []
+    original = run_state._read_blend
+
+    def counted(path: Path, width: int, height: int):
+        reads.append(path)
+        return original(path, width, height)
+
+    monkeypatch.setattr(run_state, "_read_blend", counted)
+    cfg = replace(tiny_config(), scale=0.5)
+    result = segment_scene(trained, saved.semantic, len(saved.vocabulary), cfg)
+    assert result.label_maps and cfg.assign.maps_from == "gaussians"
+    assert sorted(reads) == sorted(2 * [v.source for v in views])
+
+
 def test_older_run_with_retired_fields_still_reclusters(
     run_dir: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

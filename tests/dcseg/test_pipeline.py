@@ -381,11 +381,8 @@ def test_cache_memory_does_not_grow_with_frames(
     assert resegmented["cache_mb"] == record["cache_mb"]  # state/ linked, not grown
 
 
-def test_a_cache_within_its_memory_budget_is_never_read_back(
-    scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """The default budget holds a small capture's whole cache: training and segmentation use
-    the weights computed in memory and never read a view file back (no time lost)."""
+def counted_reads(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
+    """The view files read from now on (one entry per read of a view's weights)."""
     import dcseg.io.run_state as run_state
 
     reads: list[Path] = []
@@ -396,14 +393,21 @@ def test_a_cache_within_its_memory_budget_is_never_read_back(
         return original(path, width, height)
 
     monkeypatch.setattr(run_state, "_read_blend", counted)
+    return reads
+
+
+def test_a_cache_within_its_memory_budget_is_never_read_back(
+    scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The default budget holds a small capture's whole cache: training and segmentation use
+    the weights computed in memory and never read a view file back (no time lost)."""
+    reads = counted_reads(monkeypatch)
     run_job(inputs_of(scene), tiny_config(), tmp_path / "run")
     assert reads == []
     assert len(list((tmp_path / "run" / "state" / "views").glob("*.npz"))) == 6
 
 
-def test_segmentation_reads_each_view_twice(
-    run_dir: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_segmentation_reads_each_view_twice(run_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """With no view held in memory, segmentation reads each view's weights twice: once for
     the first cluster maps and the class evidence (one pass), once for the final cluster and
     label maps; a third pass for the evidence alone is gone."""
@@ -412,14 +416,7 @@ def test_segmentation_reads_each_view_twice(
     saved = load_run(run_dir)
     views = run_state.load_views(run_dir / "state")  # no memory: every access reads the file
     trained = replace(saved.trained, views=views)
-    reads: list[Path] = []
-    original = run_state._read_blend
-
-    def counted(path: Path, width: int, height: int):
-        reads.append(path)
-        return original(path, width, height)
-
-    monkeypatch.setattr(run_state, "_read_blend", counted)
+    reads = counted_reads(monkeypatch)
     cfg = replace(tiny_config(), scale=0.5)
     result = segment_scene(trained, saved.semantic, len(saved.vocabulary), cfg)
     assert result.label_maps and cfg.assign.maps_from == "gaussians"

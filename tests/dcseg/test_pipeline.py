@@ -414,13 +414,13 @@ def test_segmentation_reads_each_view_twice(run_dir: Path, monkeypatch: pytest.M
     import dcseg.io.run_state as run_state
 
     saved = load_run(run_dir)
-    views = run_state.load_views(run_dir / "state")  # no memory: every access reads the file
+    views = tuple(run_state.load_views(run_dir / "state"))  # no memory: every access reads
     trained = replace(saved.trained, views=views)
     reads = counted_reads(monkeypatch)
     cfg = replace(tiny_config(), scale=0.5)
     result = segment_scene(trained, saved.semantic, len(saved.vocabulary), cfg)
     assert result.label_maps and cfg.assign.maps_from == "gaussians"
-    assert sorted(reads) == sorted(2 * [v.source for v in views])
+    assert sorted(reads) == sorted(2 * [Path(str(v.source)) for v in views])
 
 
 def test_older_run_with_retired_fields_still_reclusters(

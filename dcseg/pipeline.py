@@ -212,11 +212,6 @@ class _PerView(Sequence[T]):
         return self._read(self._views[index])
 
 
-def _blends(views: Sequence[ViewState]) -> Sequence[BlendWeights]:
-    """The views' blending weights, read one view at a time as they are iterated."""
-    return _PerView(views, lambda v: v.blend)
-
-
 def _depths(views: Sequence[ViewState]) -> Sequence[NDArray[np.float32]]:
     """The views' depth, read one view at a time as they are iterated."""
     return _PerView(views, lambda v: v.depth)

@@ -13,7 +13,8 @@ Layout under ``RUN/state/``::
     semantic/            the class-aware maps the run used (for re-clustering)
     vocabulary.json      their vocabulary
 
-Arrays are written with :func:`numpy.savez` (uncompressed: it is a cache read back whole).
+Arrays are written with :func:`numpy.savez` (uncompressed: it is a cache read back whole) and
+read straight from their offsets in the file (:func:`dcseg.io.npz.read_stored`).
 Version 1 (``offsets`` int64 and float32 weights per view) is still read.
 """
 

@@ -197,7 +197,7 @@ def class_evidence(
 
     ``evidence[g, c]`` is the weight Gaussian ``g`` contributes to pixels the class-aware map
     labels ``c``, summed over views; a row of zeros means ``g`` never reaches a labelled pixel.
-    Views are read one at a time (``blends`` may stream them, as the pipeline's ``_Blends``).
+    Views are read one at a time (``blends`` may be a sequence that reads each on access).
 
     Args:
         blends: per view, the blending weights.

@@ -64,7 +64,8 @@ class CacheConfig:
         min_weight: contributions below this blending weight are not stored.
         max_per_pixel: at most this many contributions are stored per pixel (front-most).
         memory_mb: the cache lives in the run's ``state/views/``; at most this many MB of it
-            are kept in memory (least recently used views are read again from disk). Changes
+            are kept in memory (the views first seen, until it is full; the others are read
+            again from disk on each use: :class:`dcseg.io.run_state.BlendMemory`). Changes
             time and memory, never results: a capture whose cache fits is read once.
         half_weights: store the weights as float16 (3 significant digits; contributions
             below ``min_weight`` = 1e-3 are dropped anyway): the cache takes ~30 % less disk

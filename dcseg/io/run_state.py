@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,13 +43,20 @@ READABLE_VERSIONS = (1, 2)
 
 
 class BlendMemory:
-    """Cached views' blending weights kept in memory up to a byte budget, least recently used
-    first out: a capture whose cache fits the budget is read from disk once; a larger one
-    holds the budget plus the view in use, however many frames it has."""
+    """Cached views' blending weights kept in memory up to a byte budget: a capture whose cache
+    fits the budget is read from disk once; in a larger one the views are kept in the order
+    they are first seen until the budget is full, and the rest are read on every access, so it
+    holds the budget plus the view in use, however many frames it has.
+
+    Keeping the first views instead of evicting the least recently used one suits the stages'
+    access: segmentation scans the views in order, and a scan longer than the budget would
+    find none of an LRU's views (each is evicted before the scan comes back to it), where this
+    finds the budget's worth every time; affinity training draws views at random, where both
+    policies hit the same share."""
 
     def __init__(self, budget_bytes: int) -> None:
         self.budget = budget_bytes
-        self._items: OrderedDict[Path, BlendWeights] = OrderedDict()
+        self._items: dict[Path, BlendWeights] = {}
         self._bytes = 0
 
     @property
@@ -62,20 +68,16 @@ class BlendMemory:
         """The weights of ``path`` (read from disk unless held)."""
         held = self._items.get(path)
         if held is not None:
-            self._items.move_to_end(path)
             return held
         blend = _read_blend(path, width, height)
         self.put(path, blend)
         return blend
 
     def put(self, path: Path, blend: BlendWeights) -> None:
-        """Hold ``blend`` for ``path`` if it fits, dropping the least recently used."""
+        """Hold ``blend`` for ``path`` if it fits in what the budget has left."""
         size = blend.nbytes()
-        if size > self.budget or path in self._items:
+        if path in self._items or self._bytes + size > self.budget:
             return
-        while self._items and self._bytes + size > self.budget:
-            _, dropped = self._items.popitem(last=False)
-            self._bytes -= dropped.nbytes()
         self._items[path] = blend
         self._bytes += size
 

@@ -70,6 +70,34 @@ def test_view_held_in_memory_equals_the_one_read_back(tmp_path: Path) -> None:
     assert torch.equal(held.blend.weights, unheld.blend.weights)
 
 
+def test_a_scan_longer_than_the_budget_finds_the_first_views_held(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Five views, a budget for two: every later scan in order reads three views, not five
+    (an LRU would evict each view before the scan returns to it); the budget is never passed."""
+    import dcseg.io.run_state as run_state
+
+    blend = blend_of()
+    paths = [tmp_path / f"{i}.npz" for i in range(5)]
+    for path in paths:
+        write_view(path, "f", K, POSE, blend, depth_of())
+    size = run_state._read_blend(paths[0], blend.width, blend.height).nbytes()
+    reads: list[Path] = []
+    original = run_state._read_blend
+
+    def counted(path: Path, width: int, height: int) -> BlendWeights:
+        reads.append(path)
+        return original(path, width, height)
+
+    monkeypatch.setattr(run_state, "_read_blend", counted)
+    memory = BlendMemory(2 * size + size // 2)  # room for two views, not three
+    for _ in range(3):
+        for path in paths:
+            memory.get(path, blend.width, blend.height)
+        assert memory.nbytes <= memory.budget
+    assert reads == paths + 2 * paths[2:]
+
+
 def test_depth_is_read_on_use_not_held(tmp_path: Path) -> None:
     view = write_view(tmp_path / "0.npz", "f0", K, POSE, blend_of(), depth_of())
     assert view.held_depth is None

@@ -253,7 +253,7 @@ def segment_scene(
     # the pass that renders the cluster maps also sums the class evidence that the
     # consistency step and the objects use: each view's weights are read once for both
     total = EvidenceSum(len(g.means), n_classes) if needed else None
-    maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, (total, semantic))
+    maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, total, semantic)
     assignment = assign_labels(
         [maps[n] for n in labelled], [semantic[n].classes for n in labelled], k, n_classes,
         cfg.assign,
@@ -392,18 +392,18 @@ def _cluster_maps(
     cluster_labels: NDArray[np.int64],
     cfg: PipelineConfig,
     on_progress: Progress,
-    evidence: tuple[EvidenceSum | None, Mapping[str, SemanticMap]] | None = None,
+    evidence: EvidenceSum | None = None,
+    semantic: Mapping[str, SemanticMap] | None = None,
     stage: str = "masks",
 ) -> dict[str, NDArray[np.int32]]:
-    """Every view's cluster map; with ``evidence`` = (a sum, the class-aware maps), the views
-    that have a class map also add their class evidence to the sum in the same pass."""
-    total, semantic = evidence if evidence is not None else (None, {})
+    """Every view's cluster map; with ``evidence``, the views that have a class-aware map in
+    ``semantic`` also add their class evidence to it in the same pass."""
     maps = {}
     for i, view in enumerate(views):
         blend = view.blend  # read once: a view in the cache folder is loaded per access
         maps[view.name] = cluster_map(blend, cluster_labels, cfg.masks)
-        if total is not None and view.name in semantic:
-            total.add(blend, semantic[view.name].classes)
+        if evidence is not None and semantic and view.name in semantic:
+            evidence.add(blend, semantic[view.name].classes)
         on_progress(stage, (i + 1) / len(views), f"view {view.name}")
     return maps
 

@@ -173,7 +173,6 @@ class EvidenceSum:
     reading the views' weights again."""
 
     def __init__(self, n: int, n_classes: int) -> None:
-        self.n = n
         self.evidence = np.zeros((n, n_classes))
         self.views = 0
 
@@ -184,9 +183,9 @@ class EvidenceSum:
             view = view_evidence(blend, class_map, self.evidence.shape[1]).cpu().numpy()
         except ValueError as error:
             raise ValueError(f"view {i}: {error}") from None
-        if view.shape[0] > self.n:
-            top = view.shape[0] - 1
-            raise ValueError(f"view {i}: Gaussian ids go up to {top} but n = {self.n}")
+        n = self.evidence.shape[0]
+        if view.shape[0] > n:
+            raise ValueError(f"view {i}: Gaussian ids go up to {view.shape[0] - 1} but n = {n}")
         self.evidence[: view.shape[0]] += view
 
 

@@ -169,24 +169,30 @@ def write_view(
     path.parent.mkdir(parents=True, exist_ok=True)
     offsets = blend.offsets.cpu().numpy()
     counts = np.diff(offsets)
+    ids = blend.ids.cpu().numpy().astype(np.int32, copy=False)
     weights = blend.weights.cpu().numpy()
     np.savez(
         path,
         counts=counts.astype(_count_dtype(counts), copy=False),
-        ids=blend.ids.cpu().numpy().astype(np.int32, copy=False),
+        ids=ids,
         weights=weights.astype(np.float16 if half_weights else np.float32, copy=False),
         depth=depth.astype(np.float16),
     )
     if memory is not None:
-        memory.put(path, _rounded(blend) if half_weights else blend)
+        memory.put(path, _as_stored(blend, ids, half_weights))
     return ViewState(name, K, c2w, blend.width, blend.height, source=path, memory=memory)
 
 
-def _rounded(blend: BlendWeights) -> BlendWeights:
-    """``blend`` with its weights rounded as float16 storage rounds them (so a view kept in
-    memory gives the same results as one read back)."""
-    weights = blend.weights.to(torch.float16).to(torch.float32)
-    return BlendWeights(blend.height, blend.width, blend.offsets, blend.ids, weights)
+def _as_stored(blend: BlendWeights, ids: NDArray[np.int32], half_weights: bool) -> BlendWeights:
+    """``blend`` as reading its file back gives it: int32 ids and, with ``half_weights``,
+    weights rounded as float16 storage rounds them. A view kept in memory then gives the same
+    results as one read back, costs 4 bytes less per contribution, and the numba kernels see
+    one id type (each type is a separate compilation)."""
+    weights = blend.weights.cpu()
+    if half_weights:
+        weights = weights.to(torch.float16).to(torch.float32)
+    offsets = blend.offsets.cpu()
+    return BlendWeights(blend.height, blend.width, offsets, torch.from_numpy(ids), weights)
 
 
 def _count_dtype(counts: NDArray[np.int64]) -> type[np.unsignedinteger[Any]]:

@@ -68,6 +68,12 @@ def test_view_held_in_memory_equals_the_one_read_back(tmp_path: Path) -> None:
     unheld = write_view(tmp_path / "1.npz", "f0", K, POSE, blend, depth_of())
     assert memory.nbytes > 0
     assert torch.equal(held.blend.weights, unheld.blend.weights)
+    # the same dtypes too: each id type is a separate compilation of every numba kernel
+    for part in ("offsets", "ids", "weights"):
+        kept, read = getattr(held.blend, part), getattr(unheld.blend, part)
+        assert kept.dtype == read.dtype, part
+        assert torch.equal(kept, read), part
+    assert held.blend.ids.dtype == torch.int32
 
 
 def test_a_scan_longer_than_the_budget_finds_the_first_views_held(

@@ -29,6 +29,7 @@ KERNEL_MODULES = (
     "dcseg.blend_kernels",
     "dcseg.cluster.components",
     "dcseg.export.tsdf",
+    "dcseg.reconstruct.depth_filter",
     "dcseg.render.blend_weights",
     "dcseg.render.numba_kernels",
     "dcseg.render.numba_projection",

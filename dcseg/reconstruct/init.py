@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from dcseg.gaussians import SH_C0, Gaussians
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.reconstruct.depth_filter import DepthFilter
 from dcseg.reconstruct.surface import disc_frames
 from dcseg.types import Capture, Frame
 
@@ -21,13 +22,21 @@ log = logging.getLogger(__name__)
 Points = NDArray[np.float64]
 
 
-def backproject(frame: Frame, stride: int = 1) -> tuple[Points, NDArray[np.float64]]:
-    """World points and RGB in [0, 1] of a frame's valid depth pixels on a ``stride`` grid.
+def backproject(
+    frame: Frame, stride: int = 1, depth_filter: DepthFilter | None = None
+) -> tuple[Points, NDArray[np.float64]]:
+    """World points and RGB in [0, 1] of a frame's valid depth pixels on a ``stride`` grid,
+    the depth denoised by ``depth_filter`` when given.
 
     Returns:
         ``([M, 3] points, [M, 3] colours)``, float64.
     """
-    depth = frame.depth[::stride, ::stride].astype(np.float64)
+    grid = (
+        frame.depth[::stride, ::stride]
+        if depth_filter is None
+        else depth_filter.grid(frame.depth, stride)
+    )
+    depth = grid.astype(np.float64)
     rows, cols = np.nonzero(depth > 0)
     z = depth[rows, cols]
     u, v = cols * stride, rows * stride
@@ -125,7 +134,8 @@ def point_cloud(
     frames: Sequence[Frame], cfg: ReconstructConfig, extent: float
 ) -> tuple[Points, NDArray[np.float64]]:
     """The voxel-downsampled coloured cloud of all frames, at most ``cfg.max_init_points``."""
-    parts = [backproject(f, cfg.init_pixel_stride) for f in frames]
+    denoise = DepthFilter(cfg.depth_filter_window, cfg.depth_filter_k)
+    parts = [backproject(f, cfg.init_pixel_stride, denoise) for f in frames]
     points = np.concatenate([p for p, _ in parts])
     colours = np.concatenate([c for _, c in parts])
     if len(points) == 0:

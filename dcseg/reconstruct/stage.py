@@ -10,6 +10,7 @@ import torch
 
 from dcseg.gaussians import Gaussians
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.reconstruct.depth_filter import DepthFilter
 from dcseg.reconstruct.evaluate import Metrics, evaluate
 from dcseg.reconstruct.fit import ProgressCallback, optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
@@ -72,10 +73,11 @@ def fit_gaussians(
     start = time.perf_counter()
     extent = scene_extent(train)
     init = init_from_frames(train, cfg, extent=extent, device=device)
-    views = [make_view(f, cfg.train_downscale, device) for f in train]
+    denoise = DepthFilter(cfg.depth_filter_window, cfg.depth_filter_k)
+    views = [make_view(f, cfg.train_downscale, device, denoise) for f in train]
     fine = None
     if cfg.full_res_from is not None and cfg.train_downscale > 1:
-        fine = [make_view(f, 1, device) for f in train]
+        fine = [make_view(f, 1, device, denoise) for f in train]
     seconds["init"] = time.perf_counter() - start
     log.info("init: %d Gaussians, extent %.3f m, %d training views", len(init), extent, len(views))
 

@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from dcseg.reconstruct.depth_filter import DepthFilter
 from dcseg.render import Camera
 from dcseg.types import Frame, Intrinsics
 
@@ -54,23 +55,35 @@ def _downscaled(k: Intrinsics, factor: int, width: int, height: int) -> Intrinsi
     )
 
 
-def make_view(frame: Frame, downscale: int = 1, device: torch.device | str = "cpu") -> View:
-    """Tensors of ``frame``: colour area-averaged and depth sampled at block centres.
+def make_view(
+    frame: Frame,
+    downscale: int = 1,
+    device: torch.device | str = "cpu",
+    depth_filter: DepthFilter | None = None,
+) -> View:
+    """Tensors of ``frame``: colour area-averaged and depth sampled at block centres (denoised
+    by ``depth_filter`` when given; only the sampled pixels are filtered).
 
     Args:
         frame: the source frame.
         downscale: integer factor; the size becomes ``(W // downscale, H // downscale)``.
         device: where the tensors live.
+        depth_filter: the training views' depth filter; None = the sensor depth as it is.
     """
     rgb = torch.from_numpy(np.array(frame.rgb, dtype=np.float32) / 255.0).to(device)
-    depth = torch.from_numpy(np.array(frame.depth, dtype=np.float32)).to(device)
+    start = downscale // 2
+    grid = (
+        np.array(frame.depth[start::downscale, start::downscale], dtype=np.float32)
+        if depth_filter is None
+        else depth_filter.grid(frame.depth, downscale, start)
+    )
+    depth = torch.from_numpy(grid).to(device)
     intrinsics = frame.intrinsics
     if downscale > 1:
         w, h = frame.width // downscale, frame.height // downscale
         chw = rgb[: h * downscale, : w * downscale].permute(2, 0, 1).unsqueeze(0)
         rgb = F.avg_pool2d(chw, downscale).squeeze(0).permute(1, 2, 0).contiguous()
-        start = downscale // 2
-        depth = depth[start::downscale, start::downscale][:h, :w].contiguous()
+        depth = depth[:h, :w].contiguous()
         intrinsics = _downscaled(intrinsics, downscale, w, h)
     camera = Camera(
         c2w=torch.tensor(np.array(frame.c2w), dtype=torch.float32, device=device),

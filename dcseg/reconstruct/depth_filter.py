@@ -1,0 +1,138 @@
+"""Sensor-depth denoising before initialisation and the depth loss: a noise-bounded median.
+
+Depth sensors add noise that grows with the square of the distance (structured light and
+time of flight alike); back-projected as it is, a wall 3 m away becomes a shell several
+centimetres thick and the Gaussians fitted to it sit off the surface. :func:`denoise_depth`
+replaces each valid pixel by the median of the valid pixels in its ``window x window``
+neighbourhood, but only where the two differ by at most ``k`` times the view's own noise level
+at that depth; elsewhere (depth edges, thin structures the median would erase) the pixel keeps
+its value. The noise level is measured, not configured: ``sigma = 1.4826 x median(|d - m| / d^2)``
+over the pixels (of a sparse grid) whose whole window is valid: the median absolute deviation
+of the residual, scaled to a Gaussian's standard deviation, per metre squared. Noise-free or
+quantised depth (rendered captures such as Replica, 16-bit PNG) measures 0 and is returned
+as it is, at the cost of the sparse measurement only; noisy depth loses most of its noise
+(the median of 25 samples has about a fifth of one sample's deviation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+Array = Any  # numpy arrays; numba cannot see annotations, mypy cannot see numba
+
+MAD_TO_SIGMA = 1.4826
+"""Median absolute deviation -> standard deviation of a normal distribution."""
+
+NOISE_STEP = 4
+"""The noise level is measured on every this-many-th pixel of both axes."""
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def window_median(depth: Array, radius: int, step: int, offset: int) -> Array:
+    """``([H', W'] median, [H', W'] full)`` on the pixel grid ``offset::step`` of both axes:
+    per valid pixel the median of the valid (> 0) depths in its ``(2 radius + 1)`` square
+    window of the full-resolution ``depth`` (0 where the pixel is invalid), and whether the
+    whole window was valid."""
+    h, w = depth.shape
+    rows = (h - offset + step - 1) // step
+    cols = (w - offset + step - 1) // step
+    median = np.zeros((rows, cols), dtype=np.float32)
+    full = np.zeros((rows, cols), dtype=np.bool_)
+    size = (2 * radius + 1) * (2 * radius + 1)
+    for i in numba.prange(rows):
+        buf = np.empty(size, dtype=np.float32)
+        y = offset + i * step
+        for j in range(cols):
+            x = offset + j * step
+            if depth[y, x] <= 0:
+                continue
+            n = 0
+            for yy in range(max(0, y - radius), min(h, y + radius + 1)):
+                for xx in range(max(0, x - radius), min(w, x + radius + 1)):
+                    d = depth[yy, xx]
+                    if d > 0:
+                        m = n  # insertion sort: windows are tiny
+                        while m > 0 and buf[m - 1] > d:
+                            buf[m] = buf[m - 1]
+                            m -= 1
+                        buf[m] = d
+                        n += 1
+            half = n // 2
+            median[i, j] = buf[half] if n % 2 == 1 else 0.5 * (buf[half - 1] + buf[half])
+            full[i, j] = n == size
+    return median, full
+
+
+def relative_noise(
+    depth: NDArray[np.float32], median: NDArray[np.float32], full: NDArray[np.bool_]
+) -> float:
+    """The depth noise per metre squared of the pixels ``depth`` whose window medians are
+    ``median`` (see the module docstring); 0.0 when no pixel has a whole valid window."""
+    if not full.any():
+        return 0.0
+    z = depth[full].astype(np.float64)
+    residual = np.abs(z - median[full]) / (z * z)
+    return float(MAD_TO_SIGMA * np.median(residual))
+
+
+def view_noise(depth: NDArray[np.float32], window: int) -> float:
+    """A view's depth noise per metre squared (:func:`relative_noise`), measured on every
+    :data:`NOISE_STEP`-th pixel of both axes: the same value whichever grid is filtered, at
+    ``1 / NOISE_STEP^2`` of a whole-image pass."""
+    median, full = window_median(depth, window // 2, NOISE_STEP, 0)
+    return relative_noise(depth[::NOISE_STEP, ::NOISE_STEP], median, full)
+
+
+def denoise_depth(
+    depth: NDArray[np.float32], window: int, k: float, step: int = 1, offset: int = 0
+) -> NDArray[np.float32]:
+    """The pixels ``depth[offset::step, offset::step]``, each valid one replaced by its window
+    median where the two differ by at most ``k x sigma x d^2`` (module docstring); invalid
+    pixels (0) stay invalid. Only the returned pixels are filtered, so a subsampled grid costs
+    ``1 / step^2`` of the whole image.
+
+    Args:
+        depth: ``[H, W]`` float32 metres, 0 = invalid.
+        window: odd window edge in pixels (3, 5, ...); 1 returns the grid unfiltered.
+        k: how many noise deviations a replacement may move a pixel (> 0).
+        step, offset: the returned grid (``step >= 1``, ``0 <= offset < step``).
+
+    Returns:
+        ``[ceil((H - offset) / step), ceil((W - offset) / step)]`` float32, a new array.
+    """
+    if window < 1 or window % 2 == 0:
+        raise ValueError(f"depth filter window must be an odd number >= 1, got {window}")
+    if not k > 0:
+        raise ValueError(f"depth filter k must be > 0, got {k}")
+    if step < 1 or not 0 <= offset < step:
+        raise ValueError(f"need step >= 1 and 0 <= offset < step, got {step}, {offset}")
+    d = np.ascontiguousarray(depth, dtype=np.float32)
+    grid = d[offset::step, offset::step].copy()
+    if window == 1:
+        return grid
+    sigma = view_noise(d, window)
+    if sigma == 0.0:  # noise-free (or quantised) depth: nothing to do, and nothing to pay
+        return grid
+    median, full = window_median(d, window // 2, step, offset)
+    z = grid.astype(np.float64)
+    near = np.abs(z - median) <= k * sigma * z * z
+    return np.where((grid > 0) & near, median, grid).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class DepthFilter:
+    """The filter of :func:`denoise_depth` with its parameters (``window`` 1 = off)."""
+
+    window: int = 5
+    k: float = 5.0
+
+    def grid(
+        self, depth: NDArray[np.float32], step: int = 1, offset: int = 0
+    ) -> NDArray[np.float32]:
+        """The filtered pixels ``depth[offset::step, offset::step]``."""
+        return denoise_depth(depth, self.window, self.k, step, offset)

@@ -227,6 +227,21 @@ def test_cli_recluster_reclassify_evaluate(
         main(["recluster", str(run_dir), "--scale", "2", "--out", str(tmp_path / "bad")])
 
 
+def test_a_loaded_run_reads_views_from_their_files_unless_asked_to_hold_them(
+    run_dir: Path,
+) -> None:
+    """Re-segmenting holds no view by default (the page cache serves the second read; holding
+    them all doubled recluster's fresh memory); ``memory_mb`` holds them."""
+    views = load_run(run_dir).trained.views
+    for view in views:
+        assert view.blend.nnz > 0
+    assert all(v.memory is not None and v.memory.nbytes == 0 for v in views)
+    held = load_run(run_dir, memory_mb=64).trained.views
+    first = held[0].blend
+    assert held[0].memory is not None and held[0].memory.nbytes == first.nbytes()
+    assert held[0].blend is first
+
+
 def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
     saved = load_run(run_dir)
     base = PipelineConfig.from_dict(saved.record["config"])

@@ -16,12 +16,15 @@ as it is, at the cost of the sparse measurement only; noisy depth loses most of 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from dcseg.types import Frame
 
 Array = Any  # numpy arrays; numba cannot see annotations, mypy cannot see numba
 
@@ -130,6 +133,19 @@ class DepthFilter:
 
     window: int = 5
     k: float = 5.0
+
+    def noise(self, frames: Sequence[Frame]) -> float | None:
+        """The median of :func:`view_noise` over ``frames`` (metres at 1 m); None when off."""
+        if self.window == 1 or not frames:
+            return None
+        return float(
+            np.median(
+                [
+                    view_noise(np.ascontiguousarray(f.depth, dtype=np.float32), self.window)
+                    for f in frames
+                ]
+            )
+        )
 
     def grid(
         self, depth: NDArray[np.float32], step: int = 1, offset: int = 0

@@ -33,6 +33,9 @@ class Reconstruction:
         losses: the training loss of every step.
         seconds: wall time per phase (``init``, ``train``, ``eval``).
         initial_count: number of Gaussians after initialisation.
+        depth_noise: the training views' median measured depth noise at 1 m (metres; it grows
+            with the squared depth), which sets how far the depth filter may move a pixel;
+            0.0 for noise-free depth, None with the filter off.
     """
 
     gaussians: Gaussians
@@ -43,6 +46,7 @@ class Reconstruction:
     losses: tuple[float, ...]
     seconds: dict[str, float]
     initial_count: int
+    depth_noise: float | None = None
 
 
 def fit_gaussians(
@@ -80,6 +84,9 @@ def fit_gaussians(
         fine = [make_view(f, 1, device, denoise) for f in train]
     seconds["init"] = time.perf_counter() - start
     log.info("init: %d Gaussians, extent %.3f m, %d training views", len(init), extent, len(views))
+    noise = denoise.noise(train)
+    if noise is not None:
+        log.info("depth noise at 1 m: %.2f mm (median over the training views)", noise * 1000)
 
     start = time.perf_counter()
     fitted = optimise(init, views, cfg, extent, fine_views=fine, on_progress=on_progress)
@@ -102,4 +109,5 @@ def fit_gaussians(
         losses=fitted.losses,
         seconds=seconds,
         initial_count=len(init),
+        depth_noise=noise,
     )

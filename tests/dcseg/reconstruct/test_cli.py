@@ -53,6 +53,8 @@ def test_reconstruct_writes_ply_and_report(
     assert set(report["seconds"]) == {"read", "init", "train", "eval", "write"}
     assert report["config"]["iterations"] == 8 and report["seed"] == 1
     assert report["config"]["centre_weight"] == 0.0  # surface priors are opt-in
+    assert report["config"]["depth_filter_window"] == 5
+    assert report["depth_noise_at_1m"] is not None and report["depth_noise_at_1m"] >= 0.0
     assert report["backend"] == "cpu"
     assert report["peak_memory_mb"] > 0 and "torch" in report["versions"]
     assert report["capture"]["size"] == [24, 18] and report["capture"]["factor"] == 1

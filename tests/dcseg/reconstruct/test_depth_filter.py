@@ -115,3 +115,11 @@ def test_training_views_and_init_points_use_the_filtered_depth() -> None:
         np.abs(points[:, 2] - clean[::2, ::2].ravel()).mean()
         < 0.4 * np.abs(backproject(frame, 2)[0][:, 2] - clean[::2, ::2].ravel()).mean()
     )
+
+
+def test_the_noise_is_measured_per_metre_squared() -> None:
+    clean = slanted_wall()
+    frames = [frame_of(noisy(clean, 0.004, seed)) for seed in range(3)]
+    assert DepthFilter().noise(frames) == pytest.approx(0.004, rel=0.25)
+    assert DepthFilter().noise([frame_of(clean)]) == 0.0
+    assert DepthFilter(window=1).noise(frames) is None

@@ -104,7 +104,11 @@ def test_dcseg_view_rejects_a_bad_port(labelled_run: LabelledRun, capsys):
 
 def test_dcseg_view_serves_until_interrupted(labelled_run: LabelledRun):
     command = [sys.executable, "-m", "dcseg", "view", str(labelled_run.folder), "--port", "0"]
-    with subprocess.Popen(command, stdout=subprocess.PIPE, text=True) as process:
+    # Ctrl-C must reach the server however the tests were started: a shell without job control
+    # starts background jobs with SIGINT ignored, and an ignored signal stays ignored in children
+    with subprocess.Popen(
+        command, stdout=subprocess.PIPE, text=True, preexec_fn=_default_sigint
+    ) as process:
         try:
             assert process.stdout is not None
             line = process.stdout.readline()
@@ -119,3 +123,7 @@ def test_dcseg_view_serves_until_interrupted(labelled_run: LabelledRun):
         finally:
             if process.poll() is None:
                 process.kill()
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -142,8 +142,8 @@ def add_view_evidence(
     blend: BlendWeights, class_map: NDArray[Any], evidence: NDArray[np.float64]
 ) -> None:
     """Add one view's evidence (:func:`view_evidence`) into ``evidence`` ``[N, C]`` in place:
-    on the CPU the kernel adds into it directly (no per-view ``[N, C]`` table is allocated,
-    zeroed and added: that was most of the pass's time at 120k Gaussians)."""
+    on the CPU the kernel adds into it directly, so no per-view ``[N, C]`` table is allocated,
+    zeroed and added (fresh memory per view, ~11 MB at 120k Gaussians and 12 classes)."""
     n, n_classes = evidence.shape
     classes = _checked_classes(blend, class_map, n_classes)
     top = int(blend.ids.max()) if blend.nnz else -1

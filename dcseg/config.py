@@ -66,7 +66,9 @@ class CacheConfig:
         memory_mb: the cache lives in the run's ``state/views/``; at most this many MB of it
             are kept in memory (the views first seen, until it is full; the others are read
             again from disk on each use: :class:`dcseg.io.run_state.BlendMemory`). Changes
-            time and memory, never results: a capture whose cache fits is read once.
+            time and memory, never results: a capture whose cache fits is read once. This is
+            the budget of a run while it computes the cache and trains; re-segmenting a saved
+            run holds no view (:func:`dcseg.io.run_output.load_run`).
         half_weights: store the weights as float16 (3 significant digits; contributions
             below ``min_weight`` = 1e-3 are dropped anyway): the cache takes ~30 % less disk
             and memory; off stores float32.

@@ -24,6 +24,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.types import Frame
 
 Array = Any  # numpy arrays; numba cannot see annotations, mypy cannot see numba
@@ -124,7 +125,7 @@ def denoise_depth(
     median, full = window_median(d, window // 2, step, offset)
     z = grid.astype(np.float64)
     near = np.abs(z - median) <= k * sigma * z * z
-    return np.where((grid > 0) & near, median, grid).astype(np.float32)
+    return np.where((grid > 0) & near, median, grid)
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,11 @@ class DepthFilter:
 
     window: int = 5
     k: float = 5.0
+
+    @classmethod
+    def of(cls, cfg: ReconstructConfig) -> DepthFilter:
+        """The filter ``cfg`` asks for (``depth_filter_window``, ``depth_filter_k``)."""
+        return cls(cfg.depth_filter_window, cfg.depth_filter_k)
 
     def noise(self, frames: Sequence[Frame]) -> float | None:
         """The median of :func:`view_noise` over ``frames`` (metres at 1 m); None when off."""

@@ -134,7 +134,7 @@ def point_cloud(
     frames: Sequence[Frame], cfg: ReconstructConfig, extent: float
 ) -> tuple[Points, NDArray[np.float64]]:
     """The voxel-downsampled coloured cloud of all frames, at most ``cfg.max_init_points``."""
-    denoise = DepthFilter(cfg.depth_filter_window, cfg.depth_filter_k)
+    denoise = DepthFilter.of(cfg)
     parts = [backproject(f, cfg.init_pixel_stride, denoise) for f in frames]
     points = np.concatenate([p for p, _ in parts])
     colours = np.concatenate([c for _, c in parts])

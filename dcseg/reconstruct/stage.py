@@ -77,7 +77,7 @@ def fit_gaussians(
     start = time.perf_counter()
     extent = scene_extent(train)
     init = init_from_frames(train, cfg, extent=extent, device=device)
-    denoise = DepthFilter(cfg.depth_filter_window, cfg.depth_filter_k)
+    denoise = DepthFilter.of(cfg)
     views = [make_view(f, cfg.train_downscale, device, denoise) for f in train]
     fine = None
     if cfg.full_res_from is not None and cfg.train_downscale > 1:

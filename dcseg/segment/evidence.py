@@ -128,14 +128,9 @@ def view_evidence(blend: BlendWeights, class_map: NDArray[Any], n_classes: int) 
         n_classes: C.
     """
     n = int(blend.ids.max()) + 1 if blend.nnz else 0
-    if blend.ids.device.type != "cpu":
-        classes = _checked_classes(blend, class_map, n_classes)
-        return evidence_torch(
-            blend, torch.as_tensor(classes, device=blend.ids.device), n, n_classes
-        )
     evidence = np.zeros((n, n_classes))
     add_view_evidence(blend, class_map, evidence)
-    return torch.from_numpy(evidence)
+    return torch.from_numpy(evidence).to(blend.ids.device)
 
 
 def add_view_evidence(

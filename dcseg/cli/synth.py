@@ -57,6 +57,14 @@ def register(subparsers: Any) -> None:
         help="translation error of the written poses per axis, metres (std; default 0)",
     )
     parser.add_argument(
+        "--motion-blur",
+        type=float,
+        default=0.0,
+        metavar="PX",
+        help="blur colour by camera motion during the exposure, median length in pixels "
+        "(0-50; default 0 = sharp)",
+    )
+    parser.add_argument(
         "--supersample",
         type=int,
         default=2,
@@ -97,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
             depth_sigma=args.depth_sigma,
             pose_error_deg=args.pose_error_deg,
             pose_error_m=args.pose_error_m,
+            motion_blur_px=args.motion_blur,
         )
     except ValueError as exc:
         sys.stderr.write(f"dcseg synth: {exc}\n")

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from dcseg.errors import InputError
 from dcseg.synth.agnostic import simulate_agnostic
+from dcseg.synth.blur import MAX_BLUR_PX, blur_flow, motion_blur
 from dcseg.synth.cameras import CameraModel, orbit_poses
 from dcseg.synth.catalogue import VOCABULARY
 from dcseg.synth.failures import (
@@ -68,6 +69,10 @@ class SynthConfig:
             rotation of this many degrees (standard deviation of the angle, random axis) and
             a translation of this standard deviation per axis; images, depth and ground truth
             come from the true poses. 0 = exact poses.
+        motion_blur_px: colour is blurred by the camera moving during the exposure, towards
+            the next pose of the trajectory (:mod:`dcseg.synth.blur`), with a median blur
+            length of this many pixels; depth, masks and ground truth stay sharp (a depth
+            sensor's own exposure is short). 0 = sharp.
     """
 
     seed: int = 0
@@ -79,6 +84,7 @@ class SynthConfig:
     depth_sigma: float | None = None
     pose_error_deg: float = 0.0
     pose_error_m: float = 0.0
+    motion_blur_px: float = 0.0
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -97,6 +103,10 @@ class SynthConfig:
             raise ValueError(f"pose_error_deg must be between 0 and 10, got {self.pose_error_deg}")
         if not 0.0 <= self.pose_error_m <= 0.5:
             raise ValueError(f"pose_error_m must be between 0 and 0.5, got {self.pose_error_m}")
+        if not 0.0 <= self.motion_blur_px <= MAX_BLUR_PX:
+            raise ValueError(
+                f"motion_blur_px must be between 0 and {MAX_BLUR_PX:g}, got {self.motion_blur_px}"
+            )
 
     def level(self) -> NoiseLevel:
         """The noise level, with ``depth_sigma`` when it is set."""
@@ -266,13 +276,25 @@ def _simulate_frames(
         )
         depth = noisy_depth(view.depth, level, _rng(cfg, _DEPTH, i))
         pose = perturbed_pose(c2w, cfg.pose_error_deg, cfg.pose_error_m, _rng(cfg, _POSE, i))
-        frames.append(Frame(name, view.rgb, depth, k, pose))
+        rgb = _blurred(cfg, view, k.matrix(), poses, i)
+        frames.append(Frame(name, rgb, depth, k, pose))
         extras["agnostic"].append(masks_from_dense(name, dense))
         extras["semantic_map"].append(SemanticMap(name, classes))
         extras["depth"].append(view.depth)
         extras["semantic"].append(class_map)
         extras["instance"].append(inst_map)
     return frames, extras
+
+
+def _blurred(
+    cfg: SynthConfig, view: RenderedView, k: NDArray[np.float64], poses: NDArray[np.float64], i: int
+) -> NDArray[np.uint8]:
+    """View ``i``'s colour blurred towards its neighbour on the trajectory (the next pose;
+    the previous one for the last view)."""
+    if cfg.motion_blur_px == 0.0 or len(poses) < 2:
+        return view.rgb
+    other = poses[i + 1] if i + 1 < len(poses) else poses[i - 1]
+    return motion_blur(view.rgb, blur_flow(view.depth, k, poses[i], other), cfg.motion_blur_px)
 
 
 def _segmenter_output(

@@ -6,12 +6,16 @@
                              "pose_error_m": 0.01, "motion_blur_px": 3}'
 
 Each variant is a JSON object of :class:`dcseg.synth.SynthConfig` fields on top of ``--frames``,
-``--size`` and the ``default`` noise level; per variant and scene seed the scene is generated,
-reconstructed with the fast preset (``reconstruct_job``, what ``dcseg reconstruct`` runs) and
-scored: held-out PSNR against the capture's colour (blurred when the variant blurs, as a real
-capture's held-out frames are) and against the sharp colour, depth MAE against the capture's
-noisy depth (what a real capture can measure) and against the true depth, and the opaque
-Gaussians' distance to the true surfaces. Scenes and runs already in ``--work`` are reused.
+``--size`` and the ``default`` noise level, plus optionally ``"reconstruct"`` (reconstruction
+overrides, as a job's ``options.reconstruct``) and ``"scene"`` (the name of another variant
+whose scenes to reuse: same synth fields, another reconstruction). Per variant and scene seed
+the scene is generated, reconstructed with the fast preset (``reconstruct_job``, what
+``dcseg reconstruct`` runs) and scored: held-out PSNR against the capture's colour (blurred
+when the variant blurs, as a real capture's held-out frames are) and against the sharp colour,
+depth MAE against the capture's noisy depth (what a real capture can measure) and against the
+true depth, and the opaque Gaussians' distance to the true surfaces. With pose refinement the
+held-out views are scored at their aligned poses (``pose_refinement.poses`` of the report).
+Scenes and runs already in ``--work`` are reused.
 """
 
 from __future__ import annotations
@@ -25,13 +29,19 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from benchmarks.bench_surface import measure
 from dcseg.io.ply import read_gaussians_ply
 from dcseg.options import JobOptions, build_config
 from dcseg.reconstruct.evaluate import evaluate
 from dcseg.reconstruct.job import reconstruct_job
+from dcseg.reconstruct.poses import pose_change
 from dcseg.reconstruct.views import make_view
 from dcseg.synth import SynthConfig, SynthScene, generate_scene, write_scene
+from dcseg.synth.cameras import orbit_poses
+from dcseg.synth.generate import _CAMERA, CAMERA_RADII, _rng
 from dcseg.types import Frame
 
 
@@ -40,18 +50,49 @@ def parse_size(text: str) -> tuple[int, int]:
     return int(width), int(height)
 
 
-def truth_frames(cfg: SynthConfig, names: list[str]) -> list[Frame]:
-    """The named frames with sharp colour and the true depth (the scene without blur)."""
+def truth_frames(cfg: SynthConfig, names: list[str], poses: dict[str, Any] | None) -> list[Frame]:
+    """The named frames with sharp colour and the true depth (the scene without blur), at
+    ``poses`` when given (refined), else at the capture's."""
     sharp: SynthScene = generate_scene(replace(cfg, motion_blur_px=0.0))
     depth = dict(zip((f.name for f in sharp.capture.frames), sharp.gt_depth, strict=True))
     by_name = {f.name: f for f in sharp.capture.frames}
-    return [replace(by_name[n], depth=depth[n]) for n in names]
+    frames = [replace(by_name[n], depth=depth[n]) for n in names]
+    if poses is None:
+        return frames
+    return [replace(f, c2w=np.asarray(poses[f.name], dtype=np.float64)) for f in frames]
+
+
+def true_poses(cfg: SynthConfig) -> dict[str, NDArray[np.float64]]:
+    """The poses the scene's images were rendered from (before ``pose_error_*``)."""
+    poses = orbit_poses(cfg.frames, _rng(cfg, _CAMERA), np.zeros(3), CAMERA_RADII)
+    return {f"frame_{i:04d}": pose for i, pose in enumerate(poses)}
+
+
+def pose_errors(truth: dict[str, NDArray[np.float64]], poses: dict[str, Any]) -> dict[str, float]:
+    """Median rotation (degrees) and camera-centre (metres) error of ``poses`` against truth."""
+    errors = [pose_change(truth[n], np.asarray(c2w, dtype=np.float64)) for n, c2w in poses.items()]
+    degrees, metres = zip(*errors, strict=True)
+    return {"deg": round(statistics.median(degrees), 4), "m": round(statistics.median(metres), 5)}
+
+
+def score_poses(scene: Path, cfg: SynthConfig, report: dict[str, Any]) -> dict[str, Any]:
+    """Pose error of the capture's poses and, when refined, of the refined poses."""
+    truth = true_poses(cfg)
+    capture = json.loads((scene / "capture.json").read_text(encoding="utf-8"))
+    given = {f["name"]: f["c2w"] for f in capture["frames"]}
+    out = {"pose_error_given": pose_errors(truth, given)}
+    refinement = report.get("pose_refinement")
+    if refinement is not None:
+        out["pose_error_refined"] = pose_errors(truth, refinement["poses"])
+    return out
 
 
 def score_against_truth(run: Path, cfg: SynthConfig, report: dict[str, Any]) -> dict[str, float]:
     """Held-out PSNR against sharp colour and depth MAE against true depth."""
     gaussians = read_gaussians_ply(run / "scene.ply")
-    views = [make_view(f, 1, "cpu") for f in truth_frames(cfg, report["test_frames"])]
+    refinement = report.get("pose_refinement") or {}
+    frames = truth_frames(cfg, report["test_frames"], refinement.get("poses"))
+    views = [make_view(f, 1, "cpu") for f in frames]
     planar = bool(report["config"].get("planar_depth", False))
     metrics = evaluate(gaussians, views, None, planar=planar)
     return {
@@ -61,14 +102,33 @@ def score_against_truth(run: Path, cfg: SynthConfig, report: dict[str, Any]) -> 
     }
 
 
-def run_one(work: Path, cfg: SynthConfig) -> dict[str, Any]:
-    """Generate (or reuse) the scene, reconstruct (or reuse) it and score the result."""
-    scene, run = work / "scene", work / "run"
+def ensure_scene(scene: Path, cfg: SynthConfig) -> None:
+    """Generate ``scene`` unless it exists; an existing one must have been made with ``cfg``."""
     if not (scene / "capture.json").is_file():
         write_scene(generate_scene(cfg), scene)
+        return
+    made = json.loads((scene / "scene.json").read_text(encoding="utf-8"))
+    wanted = {
+        "seed": cfg.seed,
+        "size": [cfg.width, cfg.height],
+        "frames": cfg.frames,
+        "pose_error": {"deg": cfg.pose_error_deg, "m": cfg.pose_error_m},
+        "motion_blur_px": cfg.motion_blur_px,
+        "depth_sigma": cfg.level().depth_sigma,
+    }
+    found = {key: made.get(key) for key in wanted}
+    found["depth_sigma"] = made["noise_level"]["depth_sigma"]
+    if found != wanted:
+        raise SystemExit(f"{scene} was made with {found}, this variant needs {wanted}")
+
+
+def run_one(scene: Path, run: Path, cfg: SynthConfig, overrides: dict[str, Any]) -> dict[str, Any]:
+    """Generate (or reuse) the scene, reconstruct (or reuse) it and score the result."""
+    ensure_scene(scene, cfg)
     report_path = run / "reconstruction.json"
     if not report_path.is_file():
-        pipeline, options = build_config("fast", JobOptions())
+        job = JobOptions.model_validate({"reconstruct": overrides})
+        pipeline, options = build_config("fast", job)
         start = time.perf_counter()
         reconstruct_job(
             scene, options, pipeline.reconstruct, run, budget=pipeline.budget,
@@ -78,8 +138,13 @@ def run_one(work: Path, cfg: SynthConfig) -> dict[str, Any]:
     report = json.loads(report_path.read_text(encoding="utf-8"))
     row: dict[str, Any] = measure(run, scene)
     row.update(score_against_truth(run, cfg, report))
+    row.update(score_poses(scene, cfg, report))
     row["train_seconds"] = report["seconds"]["train"]
     row["depth_noise_at_1m"] = report.get("depth_noise_at_1m")
+    refinement = report.get("pose_refinement")
+    if refinement is not None:
+        row["pose_refinement"] = {k: v for k, v in refinement.items() if k != "poses"}
+    row["reconstruct"] = overrides
     return row
 
 
@@ -111,14 +176,23 @@ def main() -> int:
     for item in args.variant or ["sharp={}"]:
         name, _, text = item.partition("=")
         overrides = json.loads(text)
+        reconstruct = overrides.pop("reconstruct", {})
+        scene_name = overrides.pop("scene", name)
         rows = []
         for seed in args.seeds:
             cfg = SynthConfig(seed=seed, frames=args.frames, width=args.size[0],
                               height=args.size[1], **overrides)  # fmt: skip
-            row = {"variant": name, "seed": seed, **run_one(args.work / name / f"s{seed}", cfg)}
+            scene = args.work / scene_name / f"s{seed}" / "scene"
+            run = args.work / name / f"s{seed}" / "run"
+            row = {"variant": name, "seed": seed, **run_one(scene, run, cfg, reconstruct)}
             print(json.dumps(row), flush=True)
             rows.append(row)
-        results["variants"][name] = {"synth": overrides, "rows": rows, "summary": summary(rows)}
+        results["variants"][name] = {
+            "synth": overrides,
+            "reconstruct": reconstruct,
+            "rows": rows,
+            "summary": summary(rows),
+        }
     if args.out is not None:
         args.out.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
     return 0

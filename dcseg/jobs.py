@@ -226,7 +226,7 @@ def _train(
     size = SceneSize(views=len(capture), pixels=width * height)
     given, cfg = cfg, resolve(cfg, size)
     with clock.phase("reconstruct"):
-        gaussians = _scene(inputs, capture, cfg, on_progress, reconstruction, where)
+        gaussians, capture = _scene(inputs, capture, cfg, on_progress, reconstruction, where)
     size = replace(size, gaussians=len(gaussians))
     cfg = resolve(cfg, size)
     with clock.phase("train"):
@@ -421,18 +421,25 @@ def _scene(
     on_progress: Progress,
     summary: dict[str, Any],
     device: torch.device,
-) -> Gaussians:
+) -> tuple[Gaussians, Capture]:
+    """The Gaussians (given or reconstructed) and the capture at the poses they fit (the
+    refined poses when reconstruction refines them, ``ReconstructConfig.pose_lr``)."""
     if inputs.scene is not None:
         summary["scene"] = str(inputs.scene)
-        return read_gaussians_ply(inputs.scene).to(device)
+        return read_gaussians_ply(inputs.scene).to(device), capture
     from dcseg.reconstruct.job import reconstruct_scene
+    from dcseg.reconstruct.poses import with_poses
 
     def report(step: int, total: int, loss: float) -> None:
         on_progress("reconstruct", step / total, f"step {step}/{total} loss {loss:.4f}")
 
     gaussians, record = reconstruct_scene(capture, cfg.reconstruct, device, report)
     summary.update({k: v for k, v in record.items() if k not in ("views", "config")})
-    return gaussians
+    refinement = record.get("pose_refinement")
+    if refinement is not None:
+        capture = with_poses(capture, refinement["poses"])
+        summary["pose_refinement"] = {k: v for k, v in refinement.items() if k != "poses"}
+    return gaussians, capture
 
 
 def _config(saved: SavedRun, run: Path) -> PipelineConfig:

@@ -62,6 +62,8 @@ RECONSTRUCT_BOUNDS: Bounds = {
     "full_res_crop": (0.05, 1.0),
     "depth_filter_window": (1, 15),
     "depth_filter_k": (0.1, 100.0),
+    "pose_lr": (0.0, 0.1),
+    "pose_align_steps": (0, 10_000),
     "init_pixel_stride": (1, 64),
     "voxel_size": (1e-4, 1.0),
     "voxel_fraction": (1e-5, 0.1),

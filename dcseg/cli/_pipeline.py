@@ -34,13 +34,13 @@ def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
         "(gaussians), or from the cluster maps through each cluster's class (clusters)",
     )
     group.add_argument("--seed", type=int, default=0, help="seed of every random choice")
-    add_surface_option(group)
+    add_reconstruct_flags(group)
     add_device_option(group)
     add_output_options(parser)
 
 
-def add_surface_option(parser: Any) -> None:
-    """``--surface-priors``: reconstruct discs centred on the observed depth."""
+def add_reconstruct_flags(parser: Any) -> None:
+    """``--surface-priors`` (discs centred on the observed depth) and ``--refine-poses``."""
     parser.add_argument(
         "--surface-priors",
         action="store_true",
@@ -48,15 +48,25 @@ def add_surface_option(parser: Any) -> None:
         "their planes (surfaces within mm on clean depth): "
         "dcseg.reconstruct.config.SURFACE_PRIORS",
     )
+    parser.add_argument(
+        "--refine-poses",
+        action="store_true",
+        help="fit a pose correction per frame with the Gaussians, for captures whose poses "
+        "come from tracking (handheld sensors, phones); later stages use the refined poses: "
+        "dcseg.reconstruct.config.REFINE_POSES",
+    )
 
 
-def surface_fields(args: argparse.Namespace) -> dict[str, Any]:
-    """The reconstruction overrides of ``--surface-priors`` (none without it)."""
-    if not getattr(args, "surface_priors", False):
-        return {}
-    from dcseg.reconstruct.config import SURFACE_PRIORS
+def reconstruct_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """The reconstruction overrides of ``--surface-priors`` and ``--refine-poses``."""
+    from dcseg.reconstruct.config import REFINE_POSES, SURFACE_PRIORS
 
-    return dict(SURFACE_PRIORS)
+    fields: dict[str, Any] = {}
+    if getattr(args, "surface_priors", False):
+        fields.update(SURFACE_PRIORS)
+    if getattr(args, "refine_poses", False):
+        fields.update(REFINE_POSES)
+    return fields
 
 
 def add_device_option(parser: Any) -> None:
@@ -86,7 +96,7 @@ def job_config(args: argparse.Namespace) -> tuple[PipelineConfig, CaptureOptions
         "capture": capture_fields(args),
         "segment": segment,
         "budget": budget_fields(args),
-        "reconstruct": surface_fields(args),
+        "reconstruct": reconstruct_fields(args),
     }
     return build(args.preset, options)
 

@@ -15,7 +15,7 @@ from dcseg.cli._options import (
     build,
     capture_fields,
 )
-from dcseg.cli._pipeline import add_device_option, add_surface_option, surface_fields
+from dcseg.cli._pipeline import add_device_option, add_reconstruct_flags, reconstruct_fields
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,7 @@ def register(subparsers: Any) -> None:
         "--full-res-from", type=int, help="train at full resolution from this step on"
     )
     parser.add_argument("--backend", help="renderer backend (default: the renderer's choice)")
-    add_surface_option(parser)
+    add_reconstruct_flags(parser)
     add_device_option(parser)
     add_capture_options(parser)
     add_budget_options(parser)
@@ -58,7 +58,7 @@ def _config(args: argparse.Namespace) -> tuple[Any, Any]:
         "backend": args.backend,
     }
     chosen = {key: value for key, value in overrides.items() if value is not None}
-    chosen = {**surface_fields(args), **chosen}
+    chosen = {**reconstruct_fields(args), **chosen}
     options = {
         "reconstruct": chosen,
         "capture": capture_fields(args),

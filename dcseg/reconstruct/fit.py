@@ -21,6 +21,7 @@ from dcseg.reconstruct.densify import (
 )
 from dcseg.reconstruct.init import auto_voxel_size
 from dcseg.reconstruct.losses import depth_l1, rgb_loss
+from dcseg.reconstruct.poses import PoseCorrections, corrected_camera, move_gaussians
 from dcseg.reconstruct.sh import eval_sh
 from dcseg.reconstruct.surface import centre_depth_loss, thickness_loss
 from dcseg.reconstruct.views import View, random_crop
@@ -39,10 +40,13 @@ class FitResult:
     Attributes:
         gaussians: the optimised Gaussians (detached).
         losses: the training loss of every step.
+        corrections: per training view its fitted pose correction (``[6]``, detached;
+            :mod:`dcseg.reconstruct.poses`), None when poses are not refined.
     """
 
     gaussians: Gaussians
     losses: tuple[float, ...]
+    corrections: tuple[Tensor, ...] | None = None
 
 
 def to_params(gaussians: Gaussians) -> Params:
@@ -123,6 +127,12 @@ def step_loss(out: RenderOutput, view: View, cfg: ReconstructConfig) -> Tensor:
     return loss
 
 
+def decayed(step: int, total: int, start: float) -> float:
+    """Log-linear decay from ``start`` to ``start / 10`` over ``total`` steps."""
+    t = min(max(step / max(total, 1), 0.0), 1.0)
+    return float(start * 10.0 ** (-t))
+
+
 def _view_order(n_views: int, iterations: int, generator: torch.Generator) -> list[int]:
     """Random view indices, a fresh permutation per pass over the views (as 3DGS)."""
     order: list[int] = []
@@ -141,35 +151,43 @@ class _Trainer:
     cfg: ReconstructConfig
     extent: float
     generator: torch.Generator
+    poses: PoseCorrections | None = None
 
-    def step(self, it: int, view: View) -> float:
+    def step(self, it: int, view: View, index: int) -> float:
         cfg = self.cfg
         for group in self.optimizer.param_groups:
             if group["name"] == "means":
                 group["lr"] = means_lr(it, cfg, self.extent)
         degree = min(cfg.sh_degree, it // cfg.sh_degree_interval)
-        out = render_view(
-            from_params(self.params), view.camera, degree, cfg.backend, planar=cfg.planar_depth
-        )
+        gaussians, camera = from_params(self.params), view.camera
+        if self.poses is not None:
+            self.poses.set_lr(decayed(it, cfg.iterations, cfg.pose_lr))
+            delta = self.poses.deltas[index]
+            gaussians = move_gaussians(gaussians, delta, camera)
+            camera = corrected_camera(camera, delta)
+        out = render_view(gaussians, view.camera, degree, cfg.backend, planar=cfg.planar_depth)
         loss = step_loss(out, view, cfg)
         torch.autograd.backward(loss)
         if it < cfg.densify_until:
-            self._accumulate(view.camera)
-        self._surface_priors(view)  # after _accumulate: densification sees the image gradient
+            self._accumulate(camera)
+        self._surface_priors(view, camera)  # after _accumulate: densification sees the image
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+        if self.poses is not None:
+            self.poses.step()
         self._control(it + 1)
         return float(loss.detach())
 
-    def _surface_priors(self, view: View) -> None:
-        """Add the gradients of the thickness and centre-depth terms (not in the step loss)."""
+    def _surface_priors(self, view: View, camera: Camera) -> None:
+        """Add the gradients of the thickness and centre-depth terms (not in the step loss);
+        ``camera`` is the view's camera at its refined pose."""
         cfg = self.cfg
         terms: list[Tensor] = []
         if cfg.thickness_weight > 0:
             terms.append(cfg.thickness_weight * thickness_loss(self.params["log_scales"]))
         if cfg.centre_weight > 0:
             band = cfg.centre_band * auto_voxel_size(self.extent, cfg)
-            offset = centre_depth_loss(self.params["means"], view.camera, view.depth, band)
+            offset = centre_depth_loss(self.params["means"], camera, view.depth, band)
             terms.append(cfg.centre_weight * offset)
         if terms:
             torch.autograd.backward(torch.stack(terms).sum())
@@ -230,6 +248,9 @@ def optimise(
     )
     generator = torch.Generator().manual_seed(cfg.seed)
     params = to_params(init)
+    poses = None
+    if cfg.pose_lr > 0:
+        poses = PoseCorrections.zeros(len(views), cfg.pose_lr, init.device)
     trainer = _Trainer(
         params=params,
         optimizer=make_optimizer(params, cfg, extent),
@@ -237,6 +258,7 @@ def optimise(
         cfg=cfg,
         extent=extent,
         generator=generator,
+        poses=poses,
     )
     losses: list[float] = []
     for it, index in enumerate(_view_order(len(views), cfg.iterations, generator)):
@@ -244,7 +266,8 @@ def optimise(
             view = views[index]
         else:
             view = random_crop(fine_views[index], cfg.full_res_crop, generator)
-        losses.append(trainer.step(it, view))
+        losses.append(trainer.step(it, view, index))
         if on_progress is not None:
             on_progress(it + 1, cfg.iterations, losses[-1])
-    return FitResult(from_params(trainer.params).detach(), tuple(losses))
+    corrections = None if poses is None else tuple(d.detach() for d in poses.deltas)
+    return FitResult(from_params(trainer.params).detach(), tuple(losses), corrections)

@@ -25,6 +25,7 @@ from dcseg.devices import resolve_device
 from dcseg.errors import InputError
 from dcseg.gaussians import Gaussians
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.reconstruct.poses import refinement_report
 from dcseg.reconstruct.stage import Reconstruction
 from dcseg.sizes import SceneSize, SizeRules, reconstruct_record
 from dcseg.types import Capture
@@ -141,7 +142,14 @@ def _report(
         "device": str(device),
         "seed": cfg.seed,
         "config": asdict(cfg),
+        "pose_refinement": _refinement(result),
     }
+
+
+def _refinement(result: Reconstruction) -> dict[str, Any] | None:
+    if result.poses is None or result.original_poses is None:
+        return None
+    return refinement_report(result.original_poses, result.poses)
 
 
 def _versions() -> dict[str, str]:

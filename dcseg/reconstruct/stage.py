@@ -4,18 +4,23 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
+from numpy.typing import NDArray
 
 from dcseg.gaussians import Gaussians
+from dcseg.reconstruct.align import align_pose
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.depth_filter import DepthFilter
 from dcseg.reconstruct.evaluate import Metrics, evaluate
-from dcseg.reconstruct.fit import ProgressCallback, optimise
+from dcseg.reconstruct.fit import FitResult, ProgressCallback, optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
+from dcseg.reconstruct.poses import corrected_c2w, pose_change
 from dcseg.reconstruct.views import make_view, split_frames
-from dcseg.types import Capture
+from dcseg.types import Capture, Frame
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +41,9 @@ class Reconstruction:
         depth_noise: the training views' median measured depth noise at 1 m (metres; it grows
             with the squared depth), which sets how far the depth filter may move a pixel;
             0.0 for noise-free depth, None with the filter off.
+        poses: per frame name (trained and held out) its refined camera-to-world pose, None
+            when poses are not refined (``cfg.pose_lr`` = 0).
+        original_poses: the capture's poses of the same frames (None likewise).
     """
 
     gaussians: Gaussians
@@ -47,6 +55,8 @@ class Reconstruction:
     seconds: dict[str, float]
     initial_count: int
     depth_noise: float | None = None
+    poses: dict[str, NDArray[np.float64]] | None = None
+    original_poses: dict[str, NDArray[np.float64]] | None = None
 
 
 def fit_gaussians(
@@ -92,6 +102,17 @@ def fit_gaussians(
     fitted = optimise(init, views, cfg, extent, fine_views=fine, on_progress=on_progress)
     seconds["train"] = time.perf_counter() - start
 
+    poses = None
+    if fitted.corrections is not None:
+        start = time.perf_counter()
+        poses = refined_poses(fitted, train, test, cfg, device)
+        test = tuple(replace(f, c2w=poses[f.name]) for f in test)
+        seconds["align"] = time.perf_counter() - start
+        moved = np.array([pose_change(f.c2w, poses[f.name]) for f in capture.frames])
+        log.info(
+            "refined poses: median change %.2f deg, %.1f mm (largest %.2f deg, %.1f mm)",
+            *np.median(moved, axis=0) * (1, 1000), *moved.max(axis=0) * (1, 1000),
+        )  # fmt: skip
     start = time.perf_counter()
     held_out = [make_view(f, 1, device) for f in test]
     metrics = evaluate(fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth)
@@ -110,4 +131,26 @@ def fit_gaussians(
         seconds=seconds,
         initial_count=len(init),
         depth_noise=noise,
+        poses=poses,
+        original_poses=None if poses is None else {f.name: f.c2w for f in capture.frames},
     )
+
+
+def refined_poses(
+    fitted: FitResult,
+    train: Sequence[Frame],
+    test: Sequence[Frame],
+    cfg: ReconstructConfig,
+    device: torch.device | str,
+) -> dict[str, NDArray[np.float64]]:
+    """Every frame's refined pose: the trained frames' fitted corrections, and each held-out
+    frame aligned to the fitted Gaussians at the training resolution (:func:`align_pose`)."""
+    assert fitted.corrections is not None
+    out = {
+        f.name: corrected_c2w(f.c2w, delta)
+        for f, delta in zip(train, fitted.corrections, strict=True)
+    }
+    for frame in test:
+        view = make_view(frame, cfg.train_downscale, device)
+        out[frame.name] = corrected_c2w(frame.c2w, align_pose(fitted.gaussians, view, cfg))
+    return out

@@ -15,7 +15,7 @@ from dcseg.cli._pipeline import job_config
 from dcseg.config import BUDGET_PRESETS, CaptureOptions, FrameBudget
 from dcseg.io.captures.plan import CaptureMeta, plan_capture
 from dcseg.io.ply import read_gaussians_ply
-from dcseg.reconstruct.config import SURFACE_PRIORS
+from dcseg.reconstruct.config import REFINE_POSES, SURFACE_PRIORS
 from tests.dcseg.reconstruct.scene import make_capture
 
 
@@ -92,3 +92,30 @@ def test_run_flag_puts_the_priors_in_the_job_config() -> None:
     plain, _ = job_config(build_parser().parse_args(run))
     assert plain.reconstruct.centre_weight == 0.0 and plain.reconstruct.init_thickness is None
     assert plain.reconstruct.planar_depth is False
+
+
+def test_refine_poses_flag_refines_and_reports_the_poses(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", planned_reader([], []))
+    out = tmp_path / "out"
+    argv = ["reconstruct", str(tmp_path), "--out", str(out), "--iterations", "4"]
+    assert main([*argv, "--refine-poses"]) == 0
+    report = json.loads((out / "reconstruction.json").read_text())
+    assert {k: report["config"][k] for k in REFINE_POSES} == REFINE_POSES
+    poses = report["pose_refinement"]["poses"]
+    assert sorted(poses) == sorted(report["train_frames"] + report["test_frames"])
+    assert all(np.asarray(c2w).shape == (4, 4) for c2w in poses.values())
+    plain = tmp_path / "plain"
+    assert main(["reconstruct", str(tmp_path), "--out", str(plain), "--iterations", "4"]) == 0
+    report = json.loads((plain / "reconstruction.json").read_text())
+    assert report["config"]["pose_lr"] == 0.0 and report["pose_refinement"] is None
+
+
+def test_run_flag_puts_pose_refinement_in_the_job_config() -> None:
+    from dcseg.cli import build_parser
+
+    run = ["run", "cap", "--out", "o", "--agnostic-masks", "a", "--semantic-masks", "s"]
+    run += ["--vocabulary", "v", "--refine-poses"]
+    cfg, _ = job_config(build_parser().parse_args(run))
+    assert cfg.reconstruct.pose_lr == REFINE_POSES["pose_lr"] > 0

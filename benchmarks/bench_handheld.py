@@ -68,11 +68,31 @@ def true_poses(cfg: SynthConfig) -> dict[str, NDArray[np.float64]]:
     return {f"frame_{i:04d}": pose for i, pose in enumerate(poses)}
 
 
+def rigid_fit(source: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``[4, 4]`` rigid transform taking the points ``source`` closest to ``target`` (Kabsch)."""
+    mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
+    u, _, vt = np.linalg.svd((source - mu_s).T @ (target - mu_t))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = rot, mu_t - rot @ mu_s
+    return out
+
+
 def pose_errors(truth: dict[str, NDArray[np.float64]], poses: dict[str, Any]) -> dict[str, float]:
-    """Median rotation (degrees) and camera-centre (metres) error of ``poses`` against truth."""
-    errors = [pose_change(truth[n], np.asarray(c2w, dtype=np.float64)) for n, c2w in poses.items()]
-    degrees, metres = zip(*errors, strict=True)
-    return {"deg": round(statistics.median(degrees), 4), "m": round(statistics.median(metres), 5)}
+    """Median rotation (degrees) and camera-centre (metres) error of ``poses`` against truth,
+    as they are and after the one rigid transform that best aligns all camera centres (a
+    reconstruction moved rigidly as a whole is as good as one that is not)."""
+    names = sorted(poses)
+    given = {n: np.asarray(poses[n], dtype=np.float64) for n in names}
+    centres = np.stack([given[n][:3, 3] for n in names])
+    fit = rigid_fit(centres, np.stack([truth[n][:3, 3] for n in names]))
+    out: dict[str, float] = {}
+    for key, moved in (("", given), ("aligned_", {n: fit @ given[n] for n in names})):
+        degrees, metres = zip(*(pose_change(truth[n], moved[n]) for n in names), strict=True)
+        out[key + "deg"] = round(statistics.median(degrees), 4)
+        out[key + "m"] = round(statistics.median(metres), 5)
+    return out
 
 
 def score_poses(scene: Path, cfg: SynthConfig, report: dict[str, Any]) -> dict[str, Any]:

@@ -63,6 +63,7 @@ RECONSTRUCT_BOUNDS: Bounds = {
     "depth_filter_window": (1, 15),
     "depth_filter_k": (0.1, 100.0),
     "pose_lr": (0.0, 0.1),
+    "pose_from": (0, 100_000),
     "pose_align_steps": (0, 10_000),
     "init_pixel_stride": (1, 64),
     "voxel_size": (1e-4, 1.0),

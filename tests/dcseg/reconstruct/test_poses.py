@@ -117,10 +117,16 @@ def test_a_fit_with_refinement_returns_every_frame_pose() -> None:
     np.testing.assert_allclose(moved.frames[1].c2w, result.poses["frame001"])
     plain = fit_gaussians(capture, replace(tiny, pose_lr=0.0))
     assert plain.poses is None and plain.original_poses is None
+    late = fit_gaussians(capture, replace(tiny, pose_from=tiny.iterations))
+    assert late.poses is not None
+    for name in late.train_frames:  # refinement never started: the capture's poses
+        np.testing.assert_allclose(late.poses[name], capture.frames[int(name[-3:])].c2w)
 
 
 def test_refinement_settings_are_validated() -> None:
     with pytest.raises(ValueError, match="pose_lr must be >= 0"):
         ReconstructConfig(pose_lr=-1e-3)
+    with pytest.raises(ValueError, match="pose_from must be >= 0"):
+        ReconstructConfig(pose_from=-1)
     with pytest.raises(ValueError, match="pose_align_steps must be >= 0"):
         ReconstructConfig(pose_align_steps=-1)

@@ -39,7 +39,7 @@ def test_rotation_vector_matches_scipy_and_is_smooth_at_zero() -> None:
     x, y, z, s = expected.as_quat()
     np.testing.assert_allclose(rotvec_quat(w).numpy(), [s, x, y, z], atol=1e-12)
     zero = torch.zeros(3, dtype=torch.float64, requires_grad=True)
-    rotvec_matrix(zero).sum().backward()
+    torch.autograd.backward(rotvec_matrix(zero).sum())
     assert zero.grad is not None and bool(torch.isfinite(zero.grad).all())
     np.testing.assert_allclose(rotvec_matrix(zero.detach()).numpy(), np.eye(3), atol=1e-12)
 

@@ -14,7 +14,7 @@ the scene is generated, reconstructed with the fast preset (``reconstruct_job``,
 when the variant blurs, as a real capture's held-out frames are) and against the sharp colour,
 depth MAE against the capture's noisy depth (what a real capture can measure) and against the
 true depth, and the opaque Gaussians' distance to the true surfaces. With pose refinement the
-held-out views are scored at their aligned poses (``pose_refinement.poses`` of the report).
+held-out views are scored at their aligned poses (the run's ``poses.json``).
 Scenes and runs already in ``--work`` are reused.
 """
 
@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from benchmarks.bench_surface import measure
 from dcseg.io.ply import read_gaussians_ply
+from dcseg.io.poses import POSES_FILE, read_poses
 from dcseg.options import JobOptions, build_config
 from dcseg.reconstruct.evaluate import evaluate
 from dcseg.reconstruct.job import reconstruct_job
@@ -95,23 +96,28 @@ def pose_errors(truth: dict[str, NDArray[np.float64]], poses: dict[str, Any]) ->
     return out
 
 
-def score_poses(scene: Path, cfg: SynthConfig, report: dict[str, Any]) -> dict[str, Any]:
+def refined_poses(run: Path) -> dict[str, Any] | None:
+    """The run's refined poses (its ``poses.json``), None when it did not refine them."""
+    path = run / POSES_FILE
+    return dict(read_poses(path)) if path.is_file() else None
+
+
+def score_poses(scene: Path, run: Path, cfg: SynthConfig) -> dict[str, Any]:
     """Pose error of the capture's poses and, when refined, of the refined poses."""
     truth = true_poses(cfg)
     capture = json.loads((scene / "capture.json").read_text(encoding="utf-8"))
     given = {f["name"]: f["c2w"] for f in capture["frames"]}
     out = {"pose_error_given": pose_errors(truth, given)}
-    refinement = report.get("pose_refinement")
-    if refinement is not None:
-        out["pose_error_refined"] = pose_errors(truth, refinement["poses"])
+    refined = refined_poses(run)
+    if refined is not None:
+        out["pose_error_refined"] = pose_errors(truth, refined)
     return out
 
 
 def score_against_truth(run: Path, cfg: SynthConfig, report: dict[str, Any]) -> dict[str, float]:
     """Held-out PSNR against sharp colour and depth MAE against true depth."""
     gaussians = read_gaussians_ply(run / "scene.ply")
-    refinement = report.get("pose_refinement") or {}
-    frames = truth_frames(cfg, report["test_frames"], refinement.get("poses"))
+    frames = truth_frames(cfg, report["test_frames"], refined_poses(run))
     views = [make_view(f, 1, "cpu") for f in frames]
     planar = bool(report["config"].get("planar_depth", False))
     metrics = evaluate(gaussians, views, None, planar=planar)
@@ -158,7 +164,7 @@ def run_one(scene: Path, run: Path, cfg: SynthConfig, overrides: dict[str, Any])
     report = json.loads(report_path.read_text(encoding="utf-8"))
     row: dict[str, Any] = measure(run, scene)
     row.update(score_against_truth(run, cfg, report))
-    row.update(score_poses(scene, cfg, report))
+    row.update(score_poses(scene, run, cfg))
     row["train_seconds"] = report["seconds"]["train"]
     row["depth_noise_at_1m"] = report.get("depth_noise_at_1m")
     refinement = report.get("pose_refinement")

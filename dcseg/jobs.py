@@ -19,6 +19,9 @@ from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from dcseg import __version__
 from dcseg.config import CaptureOptions, PipelineConfig
 from dcseg.errors import InputError
@@ -31,6 +34,7 @@ from dcseg.io.ground_truth import read_ground_truth
 from dcseg.io.jsonfile import write_json
 from dcseg.io.masks import read_agnostic_masks
 from dcseg.io.ply import read_gaussians_ply
+from dcseg.io.poses import POSES_FILE, read_poses
 from dcseg.io.run_output import (
     SavedRun,
     load_labels,
@@ -422,13 +426,20 @@ def _scene(
     summary: dict[str, Any],
     device: torch.device,
 ) -> tuple[Gaussians, Capture]:
-    """The Gaussians (given or reconstructed) and the capture at the poses they fit (the
-    refined poses when reconstruction refines them, ``ReconstructConfig.pose_lr``)."""
+    """The Gaussians (given or reconstructed) and the capture at the poses they fit: the
+    refined poses when reconstruction refines them (``ReconstructConfig.pose_lr``), or when a
+    given scene has them in the ``poses.json`` beside it (what ``dcseg reconstruct
+    --refine-poses`` and the worker's reconstruct stage write)."""
+    from dcseg.reconstruct.poses import with_poses
+
     if inputs.scene is not None:
         summary["scene"] = str(inputs.scene)
+        refined = _refined_poses_beside(inputs.scene)
+        if refined is not None:
+            capture = with_poses(capture, _covering(refined, capture, inputs.scene))
+            summary["pose_refinement"] = {"poses_from": str(inputs.scene.parent)}
         return read_gaussians_ply(inputs.scene).to(device), capture
     from dcseg.reconstruct.job import reconstruct_scene
-    from dcseg.reconstruct.poses import with_poses
 
     def report(step: int, total: int, loss: float) -> None:
         on_progress("reconstruct", step / total, f"step {step}/{total} loss {loss:.4f}")
@@ -440,6 +451,27 @@ def _scene(
         capture = with_poses(capture, refinement["poses"])
         summary["pose_refinement"] = {k: v for k, v in refinement.items() if k != "poses"}
     return gaussians, capture
+
+
+def _refined_poses_beside(scene: Path) -> dict[str, NDArray[np.float64]] | None:
+    """The refined poses in the ``poses.json`` next to ``scene``, if there is one."""
+    path = scene.parent / POSES_FILE
+    return read_poses(path) if path.is_file() else None
+
+
+def _covering(
+    poses: dict[str, NDArray[np.float64]], capture: Capture, scene: Path
+) -> dict[str, NDArray[np.float64]]:
+    """``poses`` when they cover every frame of ``capture``; an InputError otherwise (a scene
+    fitted to refined poses cannot be used with the capture's own poses for some frames)."""
+    missing = [f.name for f in capture.frames if f.name not in poses]
+    if missing:
+        reason = (
+            f"has refined poses for the scene but none for {len(missing)} of the capture's "
+            f"frames (first: {missing[0]}); reconstruct with the same frames and budget"
+        )
+        raise InputError.single(str(scene.parent / POSES_FILE), reason)
+    return poses
 
 
 def _config(saved: SavedRun, run: Path) -> PipelineConfig:

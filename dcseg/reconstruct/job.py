@@ -87,6 +87,7 @@ def reconstruct_job(
     """
     from dcseg.io.captures import read_planned
     from dcseg.io.ply import write_gaussians_ply
+    from dcseg.io.poses import POSES_FILE, write_poses
 
     where = device_of(device)
     start = time.perf_counter()
@@ -100,6 +101,10 @@ def reconstruct_job(
     start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     write_gaussians_ply(out / "scene.ply", gaussians)
+    refinement = report.get("pose_refinement")
+    if refinement is not None:  # the poses go to their own file, beside the scene
+        write_poses(out / POSES_FILE, refinement.pop("poses"))
+        refinement["file"] = POSES_FILE
     seconds = {"read": read_s, **report["seconds"], "write": time.perf_counter() - start}
     report["seconds"] = {key: round(value, 3) for key, value in seconds.items()}
     report["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -12,6 +12,8 @@ import pytest
 
 from dcseg.cli import main
 from dcseg.config import PipelineConfig, preset
+from dcseg.errors import InputError
+from dcseg.io.poses import read_poses
 from dcseg.jobs import RunInputs, run_job
 from dcseg.reconstruct.poses import pose_change
 
@@ -68,3 +70,49 @@ def test_without_refinement_the_capture_poses_are_kept(scene: Path) -> None:
     given = _capture_poses(scene)
     for name, c2w in _state_poses(run).items():
         np.testing.assert_allclose(c2w, given[name], atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def refined_scene(scene: Path) -> Path:
+    """``dcseg reconstruct --refine-poses`` output (tiny): scene.ply and poses.json."""
+    out = scene.parent / "reconstructed"
+    argv = ["reconstruct", str(scene), "--out", str(out), "--iterations", "30", "--refine-poses"]
+    assert main(argv) == 0
+    return out
+
+
+def test_a_given_scene_brings_its_refined_poses(scene: Path, refined_scene: Path) -> None:
+    run = scene.parent / "given"
+    inputs = RunInputs.from_bundle(scene, scene=refined_scene / "scene.ply")
+    run_job(inputs, tiny_config(0.0), run)
+    refined = read_poses(refined_scene / "poses.json")
+    used = _state_poses(run)
+    assert set(used) == set(refined)
+    for name, c2w in used.items():
+        np.testing.assert_allclose(c2w, refined[name], atol=1e-9)
+    record = json.loads((run / "run.json").read_text())
+    assert record["reconstruction"]["pose_refinement"]["poses_from"] == str(refined_scene)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("{not json", "cannot be read as JSON"),
+        ('{"format": "other"}', "is not a poses file"),
+        ('{"format": "dcseg-poses", "poses": {"frame_0000": [[1, 0], [0, 1]]}}', "4x4"),
+        ('{"format": "dcseg-poses", "poses": {"frame_0000": ' + str(np.eye(4).tolist()) + "}}",
+         "none for 4 of the capture's frames"),
+    ],
+)  # fmt: skip
+def test_a_bad_poses_file_is_named_and_refused(
+    scene: Path, refined_scene: Path, tmp_path: Path, content: str, message: str
+) -> None:
+    copy = tmp_path / "scene"
+    copy.mkdir()
+    (copy / "scene.ply").write_bytes((refined_scene / "scene.ply").read_bytes())
+    (copy / "poses.json").write_text(content)
+    inputs = RunInputs.from_bundle(scene, scene=copy / "scene.ply")
+    with pytest.raises(InputError) as caught:
+        run_job(inputs, tiny_config(0.0), tmp_path / "run")
+    assert str(copy / "poses.json") in str(caught.value) and message in str(caught.value)
+    assert not (tmp_path / "run").exists()

@@ -15,6 +15,7 @@ from dcseg.cli._pipeline import job_config
 from dcseg.config import BUDGET_PRESETS, CaptureOptions, FrameBudget
 from dcseg.io.captures.plan import CaptureMeta, plan_capture
 from dcseg.io.ply import read_gaussians_ply
+from dcseg.io.poses import read_poses
 from dcseg.reconstruct.config import REFINE_POSES, SURFACE_PRIORS
 from tests.dcseg.reconstruct.scene import make_capture
 
@@ -103,13 +104,15 @@ def test_refine_poses_flag_refines_and_reports_the_poses(
     assert main([*argv, "--refine-poses"]) == 0
     report = json.loads((out / "reconstruction.json").read_text())
     assert {k: report["config"][k] for k in REFINE_POSES} == REFINE_POSES
-    poses = report["pose_refinement"]["poses"]
+    assert report["pose_refinement"]["file"] == "poses.json"
+    assert "poses" not in report["pose_refinement"]
+    poses = read_poses(out / "poses.json")
     assert sorted(poses) == sorted(report["train_frames"] + report["test_frames"])
-    assert all(np.asarray(c2w).shape == (4, 4) for c2w in poses.values())
     plain = tmp_path / "plain"
     assert main(["reconstruct", str(tmp_path), "--out", str(plain), "--iterations", "4"]) == 0
     report = json.loads((plain / "reconstruction.json").read_text())
     assert report["config"]["pose_lr"] == 0.0 and report["pose_refinement"] is None
+    assert not (plain / "poses.json").exists()
 
 
 def test_run_flag_puts_pose_refinement_in_the_job_config() -> None:

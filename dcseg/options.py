@@ -65,6 +65,7 @@ RECONSTRUCT_BOUNDS: Bounds = {
     "pose_lr": (0.0, 0.1),
     "pose_from": (0, 100_000),
     "pose_align_steps": (0, 10_000),
+    "pose_align_lr": (1e-6, 0.1),
     "init_pixel_stride": (1, 64),
     "voxel_size": (1e-4, 1.0),
     "voxel_fraction": (1e-5, 0.1),

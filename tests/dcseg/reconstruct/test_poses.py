@@ -11,7 +11,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from dcseg.reconstruct import fit_gaussians
-from dcseg.reconstruct.align import align_pose
+from dcseg.reconstruct.align import align_pose, in_view
 from dcseg.reconstruct.config import FAST, ReconstructConfig
 from dcseg.reconstruct.fit import render_view
 from dcseg.reconstruct.init import init_from_frames
@@ -128,5 +128,22 @@ def test_refinement_settings_are_validated() -> None:
         ReconstructConfig(pose_lr=-1e-3)
     with pytest.raises(ValueError, match="pose_from must be >= 0"):
         ReconstructConfig(pose_from=-1)
+    with pytest.raises(ValueError, match="pose_align_lr must be > 0"):
+        ReconstructConfig(pose_align_lr=0.0)
     with pytest.raises(ValueError, match="pose_align_steps must be >= 0"):
         ReconstructConfig(pose_align_steps=-1)
+
+
+def test_alignment_sees_only_the_gaussians_in_and_near_the_view() -> None:
+    capture = make_capture(4, 40, 30)
+    gaussians = init_from_frames(capture.frames, replace(FAST, init_pixel_stride=1))
+    camera = Camera.from_frame(capture.frames[0])
+    near = in_view(gaussians, camera)
+    assert 0 < int(near.sum()) < len(gaussians)
+    wide = in_view(gaussians, camera, margin=10.0)
+    assert bool((wide | ~near).all()) and int(wide.sum()) > int(near.sum())
+    # what is culled barely reaches the view (a large splat's tail at the border)
+    colours = torch.rand(len(gaussians), 3, generator=torch.Generator().manual_seed(1))
+    full = render(gaussians, colours, camera).values
+    kept = render(gaussians.subset(near), colours[near], camera).values
+    assert float((full - kept).abs().max()) < 0.02 and float((full - kept).abs().mean()) < 1e-3

@@ -278,12 +278,12 @@ realistic masks, hence off by default."""
 REFINE_POSES: dict[str, float | int] = {"pose_lr": 1e-3, "pose_from": 500}
 """The overrides of ``--refine-poses`` (off by default): from step 500 a pose correction per
 frame is fitted with the Gaussians; held-out frames are aligned to the fit before they are
-scored (:mod:`dcseg.reconstruct.poses`). Measured with ``benchmarks/bench_handheld.py`` on the
-40-view 320x240 synthetic scene (benchmarks/README "Handheld captures"): with poses off by
-0.5 degrees and 1 cm per frame it recovers most of what the pose error costs; with exact poses
-it costs held-out PSNR (the corrections also absorb some of the fit's own error), hence opt-in.
-Refining from step 0 cost exact poses more (26.8 -> 24.3 dB against 25.1 from step 500) for
-the same gain on erroneous ones; a third of the rate recovered less (22.8 dB against 24.6)."""
+scored (:mod:`dcseg.reconstruct.poses`). Measured with ``benchmarks/bench_handheld.py`` on two
+40-view 320x240 synthetic scenes (benchmarks/README "Handheld captures"): with poses off by
+0.5 degrees and 1 cm per frame, held-out PSNR 19.0 -> 25.0 dB and depth MAE against the true
+depth 40.8 -> 16.6 mm; with exact poses 27.95 -> 25.90 dB (the corrections also absorb some of
+the fit's own error), hence opt-in. Refining from step 0 cost exact poses more (24.9 dB) for
+0.3 dB more under pose error; a third of the rate recovered less (22.8 dB, one scene)."""
 
 PRESETS: dict[str, ReconstructConfig] = {"fast": FAST, "paper": PAPER}
 """Named configurations, selectable with ``dcseg reconstruct --preset``."""

@@ -611,7 +611,7 @@ class Store:
             cutoff = self._now(s) - stale_after
             query = (
                 select(Job)
-                .where(Job.status.in_(("running", "canceling")), Job.heartbeat_at < cutoff)
+                .where(Job.status.in_(("running", "canceling")), Job.heartbeat_at <= cutoff)
                 .with_for_update(skip_locked=True)
             )
             for job in s.scalars(query):
@@ -630,7 +630,7 @@ class Store:
                 (Job.status == "queued")
                 | (
                     (Job.status == "running")
-                    & ((Job.heartbeat_at < cutoff) | Job.heartbeat_at.is_(None))
+                    & ((Job.heartbeat_at <= cutoff) | Job.heartbeat_at.is_(None))
                 )
             )
             return list(s.scalars(query.order_by(Job.created_at)))

@@ -116,12 +116,6 @@ def corrected_camera(camera: Camera, delta: Tensor) -> Camera:
     return replace(camera, c2w=torch.as_tensor(c2w, dtype=camera.c2w.dtype).to(camera.c2w))
 
 
-def correction_size(delta: Tensor) -> tuple[float, float]:
-    """``(degrees, metres)``: the rotation angle and translation length of a correction."""
-    d = delta.detach().double()
-    return float(np.degrees(d[:3].norm())), float(d[3:].norm())
-
-
 @dataclass
 class PoseCorrections:
     """One learnable correction per view and the Adam that fits them.

@@ -41,8 +41,7 @@ from dcseg.reconstruct.job import reconstruct_job
 from dcseg.reconstruct.poses import pose_change
 from dcseg.reconstruct.views import make_view
 from dcseg.synth import SynthConfig, SynthScene, generate_scene, write_scene
-from dcseg.synth.cameras import orbit_poses
-from dcseg.synth.generate import _CAMERA, CAMERA_RADII, _rng
+from dcseg.synth.generate import true_poses as rendered_poses
 from dcseg.types import Frame
 
 
@@ -65,7 +64,7 @@ def truth_frames(cfg: SynthConfig, names: list[str], poses: dict[str, Any] | Non
 
 def true_poses(cfg: SynthConfig) -> dict[str, NDArray[np.float64]]:
     """The poses the scene's images were rendered from (before ``pose_error_*``)."""
-    poses = orbit_poses(cfg.frames, _rng(cfg, _CAMERA), np.zeros(3), CAMERA_RADII)
+    poses = rendered_poses(cfg)
     return {f"frame_{i:04d}": pose for i, pose in enumerate(poses)}
 
 

@@ -189,7 +189,7 @@ def generate_scene(cfg: SynthConfig) -> SynthScene:
     timings: dict[str, float] = {}
     start = time.perf_counter()
     camera = CameraModel(cfg.width, cfg.height)
-    poses = orbit_poses(cfg.frames, _rng(cfg, _CAMERA), np.zeros(3), CAMERA_RADII)
+    poses = true_poses(cfg)
     instances, views = _render_all(cfg, camera, poses, timings)
     tick = time.perf_counter()
     frames, extras = _simulate_frames(cfg, camera, poses, instances, views)
@@ -218,6 +218,12 @@ def generate_scene(cfg: SynthConfig) -> SynthScene:
         ground_truth=gt,
         timings=timings,
     )
+
+
+def true_poses(cfg: SynthConfig) -> NDArray[np.float64]:
+    """``[frames, 4, 4]`` the poses the views are rendered from (the capture's are these moved
+    by ``pose_error_*``)."""
+    return orbit_poses(cfg.frames, _rng(cfg, _CAMERA), np.zeros(3), CAMERA_RADII)
 
 
 def _render_all(

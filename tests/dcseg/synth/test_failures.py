@@ -213,6 +213,7 @@ pybullet = pytest.importorskip("pybullet")
 def test_realistic_scene_and_cli_options(tmp_path: Path) -> None:
     from dcseg.cli import main
     from dcseg.synth import SynthConfig, generate_scene
+    from dcseg.synth.generate import true_poses
 
     small = {"frames": 3, "width": 80, "height": 60}
     scene = generate_scene(SynthConfig(seed=1, noise="realistic", **small))
@@ -225,6 +226,8 @@ def test_realistic_scene_and_cli_options(tmp_path: Path) -> None:
     moved = generate_scene(SynthConfig(seed=1, noise="realistic", pose_error_deg=1.0, **small))
     for f, g in zip(scene.capture.frames, moved.capture.frames, strict=True):
         assert np.array_equal(f.rgb, g.rgb) and not np.allclose(f.c2w, g.c2w)
+    truth = true_poses(SynthConfig(seed=1, noise="realistic", pose_error_deg=1.0, **small))
+    np.testing.assert_array_equal(np.stack([f.c2w for f in scene.capture.frames]), truth)
     out = tmp_path / "scene"
     args = ["synth", str(out), "--frames", "2", "--size", "64x48", "--noise", "realistic"]
     args += ["--depth-sigma", "0.01", "--pose-error-deg", "0.5", "--pose-error-m", "0.01"]

@@ -160,11 +160,11 @@ class _Trainer:
                 group["lr"] = means_lr(it, cfg, self.extent)
         degree = min(cfg.sh_degree, it // cfg.sh_degree_interval)
         gaussians, camera = from_params(self.params), view.camera
-        refine = self.poses is not None and it >= cfg.pose_from
-        if self.poses is not None and refine:
+        poses = self.poses if it >= cfg.pose_from else None
+        if poses is not None:
             span = cfg.iterations - cfg.pose_from
-            self.poses.set_lr(decayed(it - cfg.pose_from, span, cfg.pose_lr))
-            delta = self.poses.deltas[index]
+            poses.set_lr(decayed(it - cfg.pose_from, span, cfg.pose_lr))
+            delta = poses.deltas[index]
             gaussians = move_gaussians(gaussians, delta, camera)
             camera = corrected_camera(camera, delta)
         out = render_view(gaussians, view.camera, degree, cfg.backend, planar=cfg.planar_depth)
@@ -175,8 +175,8 @@ class _Trainer:
         self._surface_priors(view, camera)  # after _accumulate: densification sees the image
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
-        if self.poses is not None and refine:
-            self.poses.step()
+        if poses is not None:
+            poses.step()
         self._control(it + 1)
         return float(loss.detach())
 

@@ -158,14 +158,22 @@ def with_poses(capture: Capture, poses: Mapping[str, NDArray[np.float64]]) -> Ca
     return replace(capture, frames=frames)
 
 
-def refinement_report(
+def change_stats(
     before: Mapping[str, NDArray[np.float64]], after: Mapping[str, NDArray[np.float64]]
-) -> dict[str, Any]:
-    """Median and largest change of the refined poses, and every refined pose (row-major)."""
+) -> dict[str, dict[str, float]]:
+    """Median and largest rotation (degrees) and translation (metres) from ``before`` to
+    ``after``, over the frames of ``after``."""
     changes = [pose_change(before[name], after[name]) for name in after]
     degrees, metres = (np.array(values) for values in zip(*changes, strict=True))
     return {
         "rotation_deg": {"median": float(np.median(degrees)), "max": float(degrees.max())},
         "translation_m": {"median": float(np.median(metres)), "max": float(metres.max())},
-        "poses": {name: np.asarray(c2w).tolist() for name, c2w in after.items()},
     }
+
+
+def refinement_report(
+    before: Mapping[str, NDArray[np.float64]], after: Mapping[str, NDArray[np.float64]]
+) -> dict[str, Any]:
+    """:func:`change_stats` and every refined pose (row-major)."""
+    poses = {name: np.asarray(c2w).tolist() for name, c2w in after.items()}
+    return {**change_stats(before, after), "poses": poses}

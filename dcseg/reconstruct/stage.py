@@ -18,7 +18,7 @@ from dcseg.reconstruct.depth_filter import DepthFilter
 from dcseg.reconstruct.evaluate import Metrics, evaluate
 from dcseg.reconstruct.fit import FitResult, ProgressCallback, optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
-from dcseg.reconstruct.poses import corrected_c2w, pose_change
+from dcseg.reconstruct.poses import change_stats, corrected_c2w
 from dcseg.reconstruct.views import make_view, split_frames
 from dcseg.types import Capture, Frame
 
@@ -108,11 +108,7 @@ def fit_gaussians(
         poses = refined_poses(fitted, train, test, cfg, device)
         test = tuple(replace(f, c2w=poses[f.name]) for f in test)
         seconds["align"] = time.perf_counter() - start
-        moved = np.array([pose_change(f.c2w, poses[f.name]) for f in capture.frames])
-        log.info(
-            "refined poses: median change %.2f deg, %.1f mm (largest %.2f deg, %.1f mm)",
-            *np.median(moved, axis=0) * (1, 1000), *moved.max(axis=0) * (1, 1000),
-        )  # fmt: skip
+        _log_change({f.name: f.c2w for f in capture.frames}, poses)
     start = time.perf_counter()
     held_out = [make_view(f, 1, device) for f in test]
     metrics = evaluate(fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth)
@@ -134,6 +130,17 @@ def fit_gaussians(
         poses=poses,
         original_poses=None if poses is None else {f.name: f.c2w for f in capture.frames},
     )
+
+
+def _log_change(
+    before: dict[str, NDArray[np.float64]], after: dict[str, NDArray[np.float64]]
+) -> None:
+    stats = change_stats(before, after)
+    rot, move = stats["rotation_deg"], stats["translation_m"]
+    log.info(
+        "refined poses: median change %.2f deg, %.1f mm (largest %.2f deg, %.1f mm)",
+        rot["median"], move["median"] * 1000, rot["max"], move["max"] * 1000,
+    )  # fmt: skip
 
 
 def refined_poses(

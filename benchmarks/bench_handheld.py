@@ -135,6 +135,7 @@ def ensure_scene(scene: Path, cfg: SynthConfig) -> None:
     made = json.loads((scene / "scene.json").read_text(encoding="utf-8"))
     wanted = {
         "seed": cfg.seed,
+        "noise": cfg.noise,
         "size": [cfg.width, cfg.height],
         "frames": cfg.frames,
         "pose_error": {"deg": cfg.pose_error_deg, "m": cfg.pose_error_m},

@@ -6,12 +6,12 @@ are tuned on layouts 0-2 (``--tuning``) and layouts 3-4 are reported apart as he
 the saved state with the current code and defaults (nothing is retrained), at several
 clustering seeds, so a change to clustering, masks or assignment is re-scored in minutes.
 
-    python benchmarks/bench_segment.py --train --work WORK    # train what is missing
-    python benchmarks/bench_segment.py --work WORK            # score the saved runs
-    python benchmarks/bench_segment.py --work WORK --noise heavy --heldout 3 --tuning \
+    python -m benchmarks.bench_segment --train --work WORK    # train what is missing
+    python -m benchmarks.bench_segment --work WORK            # score the saved runs
+    python -m benchmarks.bench_segment --work WORK --noise heavy --heldout 3 --tuning \
         --out one.json                                        # score one run
-    python benchmarks/bench_segment.py --merge one.json two.json   # summarise runs scored apart
-    python benchmarks/bench_segment.py --work WORK --set assign.complete=false   # an ablation
+    python -m benchmarks.bench_segment --merge one.json two.json   # summarise runs scored apart
+    python -m benchmarks.bench_segment --work WORK --set assign.complete=false   # an ablation
 
 Scores go to ``--out`` (``benchmarks/results/segment_heldout.json``): every run's rows and a
 summary per noise level and group (mean, sample standard deviation, range, count). Training
@@ -45,6 +45,7 @@ import torch  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 from plyfile import PlyData  # noqa: E402
 
+from benchmarks.bench_handheld import ensure_scene  # noqa: E402
 from dcseg.config import PipelineConfig, preset  # noqa: E402
 from dcseg.evaluate import EvaluateConfig, evaluate_scenes, transfer_opaque, vote_projection  # noqa: E402
 from dcseg.evaluate.instances import instance_metrics  # noqa: E402
@@ -54,7 +55,7 @@ from dcseg.io.run_state import ViewState  # noqa: E402
 from dcseg.jobs import RunInputs, run_job  # noqa: E402
 from dcseg.pipeline import segment_scene  # noqa: E402
 from dcseg.segment import class_evidence, vote_3d  # noqa: E402
-from dcseg.synth import SynthConfig, generate_scene, write_scene  # noqa: E402
+from dcseg.synth import SynthConfig  # noqa: E402
 from dcseg.types import GroundTruth  # noqa: E402
 
 TUNING = (0, 1, 2)
@@ -73,20 +74,36 @@ def ensure_run(work: Path, noise: str, layout: int, args: argparse.Namespace) ->
     """The trained run of one layout at one noise level, synthesised and trained if missing."""
     root = run_dir(work, noise, layout)
     scene = root / "scene"
-    if not (scene / "scene.json").is_file():
-        width, height = args.size
-        synth = SynthConfig(
-            seed=layout, frames=args.frames, width=width, height=height, noise=noise
-        )
-        start = time.perf_counter()
-        write_scene(generate_scene(synth), scene)
-        print(f"{noise} layout{layout}: scene in {time.perf_counter() - start:.0f} s", flush=True)
+    width, height = args.size
+    synth = SynthConfig(
+        seed=layout,
+        frames=args.frames,
+        width=width,
+        height=height,
+        noise=noise,
+        **synth_fields(args.synth),
+    )
+    start = time.perf_counter()
+    ensure_scene(scene, synth)
+    print(f"{noise} layout{layout}: scene in {time.perf_counter() - start:.0f} s", flush=True)
     run = root / "run"
     if not (run / "run.json").is_file():
         start = time.perf_counter()
         run_job(RunInputs.from_bundle(scene), train_config(args), run)
         print(f"{noise} layout{layout}: trained in {time.perf_counter() - start:.0f} s", flush=True)
     return run
+
+
+def synth_fields(items: Sequence[str]) -> dict[str, Any]:
+    """``--synth`` ``KEY=JSON`` items as :class:`SynthConfig` fields (handheld faults:
+    ``pose_error_deg``, ``pose_error_m``, ``motion_blur_px``, ``depth_sigma``)."""
+    fields = {}
+    for item in items:
+        key, _, text = item.partition("=")
+        if key in {"seed", "frames", "width", "height", "noise"}:
+            raise SystemExit(f"--synth {key}: set by the layout, --frames, --size or --noise")
+        fields[key] = json.loads(text)
+    return fields
 
 
 def train_config(args: argparse.Namespace) -> PipelineConfig:
@@ -443,6 +460,14 @@ def parser() -> argparse.ArgumentParser:
         help="overrides for ablations (with --train also of training: reconstruct, cache, "
         "affinity), e.g. assign.complete=false scale=0.5 "
         "assign.maps_from=clusters",
+    )
+    p.add_argument(
+        "--synth",
+        nargs="*",
+        default=[],
+        metavar="KEY=JSON",
+        help="SynthConfig fields of the scenes --train makes, e.g. pose_error_deg=0.5 "
+        "pose_error_m=0.01 motion_blur_px=3 depth_sigma=0.00285 (use a --work of its own)",
     )
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--reconstruct-iterations", type=int, help="override (smoke runs only)")

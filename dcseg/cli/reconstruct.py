@@ -30,6 +30,11 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("capture", type=Path, help="capture folder or archive")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into a non-empty OUT (replaces scene.ply, reconstruction.json, poses.json)",
+    )
     parser.add_argument("--preset", choices=["fast", "paper"], default="fast", help="parameters")
     parser.add_argument("--iterations", type=int, help="optimisation steps (overrides preset)")
     parser.add_argument("--holdout", type=int, help="hold out every N-th frame (0 = none)")
@@ -89,6 +94,9 @@ def run(args: argparse.Namespace) -> int:
     from dcseg.reconstruct.job import reconstruct_job
     from dcseg.sizes import summary as rules_summary
 
+    if args.out.is_dir() and any(args.out.iterdir()) and not args.overwrite:
+        sys.stderr.write(f"dcseg reconstruct: {args.out} is not empty; pass --overwrite\n")
+        return 2
     pipeline, options = _config(args)
     cfg = pipeline.reconstruct
     bar, on_progress = _progress_bar(cfg.iterations)

@@ -76,6 +76,9 @@ def reconstruct_job(
 ) -> dict[str, Any]:
     """Read a capture, reconstruct it and write ``out/scene.ply`` and ``out/<report_name>``.
 
+    With pose refinement the refined poses go to ``out/poses.json``; without, a ``poses.json``
+    left there by an earlier reconstruction is removed (it belongs to that scene).
+
     Only the frames ``budget`` selects are read, at its working resolution
     (:mod:`dcseg.io.captures.plan`); the report's ``capture`` records that choice. With
     ``rules``, ``cfg`` holds the values at the reference size and the size rules
@@ -105,6 +108,8 @@ def reconstruct_job(
     if refinement is not None:  # the poses go to their own file, beside the scene
         write_poses(out / POSES_FILE, refinement.pop("poses"))
         refinement["file"] = POSES_FILE
+    else:  # an earlier refined scene's poses would be read with this scene
+        (out / POSES_FILE).unlink(missing_ok=True)
     seconds = {"read": read_s, **report["seconds"], "write": time.perf_counter() - start}
     report["seconds"] = {key: round(value, 3) for key, value in seconds.items()}
     report["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -6,7 +6,7 @@ from typing import Any
 
 import pytest
 
-from benchmarks.bench_segment import markdown, overridden, summarise
+from benchmarks.bench_segment import markdown, overridden, summarise, synth_fields
 from dcseg.config import preset
 
 
@@ -57,3 +57,10 @@ def test_held_out_layouts_are_summarised_apart_from_tuning_ones() -> None:
 def test_overrides_reach_the_named_section() -> None:
     cfg = overridden(preset("fast"), ["assign.complete=false", "scale=0.5"])
     assert cfg.assign.complete is False and cfg.scale == 0.5
+
+
+def test_synth_fields_parse_faults_and_refuse_what_the_layout_sets() -> None:
+    fields = synth_fields(["pose_error_deg=0.5", "motion_blur_px=3", "depth_sigma=null"])
+    assert fields == {"pose_error_deg": 0.5, "motion_blur_px": 3, "depth_sigma": None}
+    with pytest.raises(SystemExit, match="--synth seed"):
+        synth_fields(["seed=4"])

@@ -115,6 +115,24 @@ def test_refine_poses_flag_refines_and_reports_the_poses(
     assert not (plain / "poses.json").exists()
 
 
+def test_reconstruct_refuses_a_non_empty_out_and_overwrite_drops_stale_poses(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", planned_reader([], []))
+    out = tmp_path / "out"
+    argv = ["reconstruct", str(tmp_path), "--out", str(out), "--iterations", "4"]
+    assert main([*argv, "--refine-poses"]) == 0
+    before = (out / "scene.ply").read_bytes()
+    capsys.readouterr()
+    assert main(argv) == 2
+    assert f"{out} is not empty; pass --overwrite" in capsys.readouterr().err
+    assert (out / "scene.ply").read_bytes() == before and (out / "poses.json").is_file()
+    assert main([*argv, "--overwrite"]) == 0
+    report = json.loads((out / "reconstruction.json").read_text())
+    assert report["pose_refinement"] is None
+    assert not (out / "poses.json").exists()  # it belonged to the refined scene
+
+
 def test_run_flag_puts_pose_refinement_in_the_job_config() -> None:
     from dcseg.cli import build_parser
 

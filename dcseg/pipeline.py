@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
 from dcseg.assign.completion import complete_labels
 from dcseg.assign.consistency import (
+    follow_evidence,
     inconsistent,
     mask_agreement,
     pooled_evidence,
@@ -332,13 +333,14 @@ def _supported(
 def _trusting(cfg: PipelineConfig, agreement: float) -> tuple[PipelineConfig, bool]:
     """``cfg`` with the trusted-evidence settings when the masks agree enough
     (``AssignConfig.trust_agreement``), and whether they did. Trusted, no group of Gaussians
-    is regrouped: each follows its own evidence in completion."""
+    is regrouped: each follows its own evidence in completion, and every Gaussian follows it
+    after completion (``follow_evidence_ratio``)."""
     a = cfg.assign
     if a.trust_agreement is None or not agreement >= a.trust_agreement:
         return cfg, False
     trusted = replace(
         a, min_share_ratio=a.trusted_share_ratio, evidence_weight=a.trusted_evidence_weight,
-        regroup_min_gaussians=0,
+        regroup_min_gaussians=0, follow_evidence_ratio=a.trusted_follow_ratio,
     )  # fmt: skip
     return replace(cfg, assign=trusted), True
 
@@ -353,7 +355,8 @@ def _objects(
     cfg: PipelineConfig,
     stuff: Sequence[int],
 ) -> tuple[Instances, NDArray[np.int64]]:
-    """Adopt unlabelled clusters, complete labels, and build object instances.
+    """Adopt unlabelled clusters, complete labels, build object instances, and (with
+    ``cfg.assign.follow_evidence_ratio``) let Gaussians follow their own evidence.
 
     ``means`` are the Gaussians' centres and ``radius`` the contact radius
     (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.assign.contact_factor``); ``stuff``
@@ -371,11 +374,15 @@ def _objects(
             rounds=a.completion_rounds, evidence_weight=a.evidence_weight,
         )  # fmt: skip
     if not a.objects:
-        return _per_cluster(labels, assignment), ids
-    instances = object_instances(
-        means, labels, ids, fragments, clustering.centers, assignment.votes,
-        assignment.scores, stuff, radius, a,
-    )  # fmt: skip
+        instances = _per_cluster(labels, assignment)
+    else:
+        instances = object_instances(
+            means, labels, ids, fragments, clustering.centers, assignment.votes,
+            assignment.scores, stuff, radius, a,
+        )  # fmt: skip
+    if a.follow_evidence_ratio > 0:  # after the objects: a few moved Gaussians leave theirs
+        ids = follow_evidence(ids, evidence, a.follow_evidence_ratio)
+        instances = instances.of_classes(ids)
     return instances, ids
 
 

@@ -72,6 +72,41 @@ def inconsistent(
     return low
 
 
+def follow_evidence(
+    labels: NDArray[np.integer[Any]], evidence: NDArray[np.floating[Any]], min_ratio: float
+) -> NDArray[np.int64]:
+    """Gaussians whose own evidence gives their class too small a share take their best class.
+
+    A Gaussian with evidence whose class (or none, -1) has an evidence share below
+    ``min_ratio`` x the share of its best-supported class takes that class; Gaussians without
+    evidence keep theirs. Used only when the class-aware masks are trusted
+    (``AssignConfig.follow_evidence_ratio``), after adoption and completion, so that every
+    Gaussian, not only the members of labelled clusters, follows near-perfect masks.
+
+    Args:
+        labels: ``[N]`` class per Gaussian, -1 = none.
+        evidence: ``[N, C]`` class evidence per Gaussian.
+        min_ratio: in [0, 1]; 0 changes nothing, 1 = the 3D vote wherever there is evidence.
+
+    Example:
+        >>> ev = np.array([[1.0, 3.0], [2.0, 2.1], [0.0, 0.0], [0.0, 1.0]])
+        >>> follow_evidence(np.array([0, 0, 0, -1]), ev, 0.9).tolist()
+        [1, 0, 0, 1]
+    """
+    if not 0.0 <= min_ratio <= 1.0:
+        raise ValueError(f"min_ratio must be in [0, 1], got {min_ratio}")
+    out = np.asarray(labels, dtype=np.int64).copy()
+    ev = np.asarray(evidence, dtype=np.float64)
+    if ev.ndim != 2 or out.shape != (len(ev),):
+        raise ValueError(f"labels {out.shape} and evidence {ev.shape} must have N rows")
+    rows = np.arange(len(out))
+    own = np.where(out >= 0, ev[rows, np.clip(out, 0, max(ev.shape[1] - 1, 0))], 0.0)
+    best = ev.max(axis=1, initial=0.0)
+    flip = (ev.sum(axis=1) > 0) & (own < min_ratio * best)
+    out[flip] = ev[flip].argmax(axis=1)
+    return out
+
+
 def mask_agreement(classes: NDArray[np.integer[Any]], evidence: NDArray[np.floating[Any]]) -> float:
     """How much of the labelled Gaussians' class evidence agrees with their cluster's class.
 

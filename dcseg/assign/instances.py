@@ -71,6 +71,21 @@ class Instances:
     def n_instances(self) -> int:
         return int(self.classes.shape[0])
 
+    def of_classes(self, labels: NDArray[np.int64]) -> Instances:
+        """These instances once Gaussians whose class (``labels``, ``[N]``) is no longer their
+        instance's class have left it (instance -1); the instances themselves stay.
+
+        Example:
+            >>> one = Instances(np.array([0, 0, -1]), np.array([2]), np.ones(1), np.zeros(1, int))
+            >>> one.of_classes(np.array([2, 1, 2])).ids.tolist()
+            [0, -1, -1]
+        """
+        if np.shape(labels) != self.ids.shape:
+            raise ValueError(f"labels {np.shape(labels)} must be [N] = {self.ids.shape}")
+        own = np.append(self.classes, -1)[self.ids]  # id -1 reads the appended -1
+        ids = np.where((self.ids >= 0) & (own != np.asarray(labels)), -1, self.ids)
+        return Instances(ids, self.classes.copy(), self.scores.copy(), self.of_cluster.copy())
+
 
 def cluster_contacts(
     means: NDArray[np.float64], cluster_labels: NDArray[np.int64], radius: float, neighbours: int

@@ -145,7 +145,11 @@ def test_masks_that_agree_everywhere_let_each_gaussian_follow_its_own_evidence(
     assert trusted.evidence_trusted and not plain.evidence_trusted
     assert trusted.semantic_ids.tolist() == [0] * 10 + [1, 1]
     assert plain.semantic_ids.tolist() == [0] * 10 + [0, 1]
-    assert not run(trust_agreement=1.0 - 1e-9, trusted_evidence_weight=1.0).semantic_ids[10]
+    weak = {"trust_agreement": 1.0 - 1e-9, "trusted_evidence_weight": 1.0}
+    assert not run(**weak, trusted_follow_ratio=0.0).semantic_ids[10]  # completion alone
+    # completion gave it the neighbours' class; its own trusted evidence then wins
+    assert run(**weak).semantic_ids[10] == 1
+    assert run(trust_agreement=None, follow_evidence_ratio=0.9).semantic_ids[10] == 1
 
 
 def test_masks_that_disagree_keep_cluster_decisions() -> None:

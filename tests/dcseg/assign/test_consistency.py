@@ -9,6 +9,7 @@ import pytest
 
 from dcseg.assign.config import AssignConfig
 from dcseg.assign.consistency import (
+    follow_evidence,
     inconsistent,
     mask_agreement,
     pooled_evidence,
@@ -80,7 +81,8 @@ def test_mask_agreement_weighs_evidence_of_labelled_gaussians_only() -> None:
     [("trust_agreement", 1.5), ("trust_agreement", -0.1), ("trusted_share_ratio", 2.0),
      ("trusted_evidence_weight", -1.0), ("min_cluster_support", 1.5),
      ("min_cluster_support", -0.1), ("support_min_extent", -1.0),
-     ("support_min_extent", float("nan")), ("regroup_min_gaussians", -1)],
+     ("support_min_extent", float("nan")), ("regroup_min_gaussians", -1),
+     ("follow_evidence_ratio", 1.5), ("trusted_follow_ratio", -0.1)],
 )  # fmt: skip
 def test_trust_support_and_regroup_settings_are_checked(field: str, value: float) -> None:
     changes: dict[str, Any] = {field: value}
@@ -163,3 +165,15 @@ def test_spread_is_the_largest_side_without_the_tails() -> None:
     assert spread(stray) < 0.03
     with pytest.raises(ValueError, match=r"\[M, 3\] with M >= 1"):
         spread(np.zeros((0, 3)))
+
+
+def test_follow_evidence_moves_only_gaussians_their_evidence_contradicts() -> None:
+    ev = np.array([[1.0, 3.0], [2.0, 2.1], [0.0, 0.0], [0.0, 1.0], [5.0, 0.0]])
+    labels = np.array([0, 0, 0, -1, 0])
+    assert follow_evidence(labels, ev, 0.9).tolist() == [1, 0, 0, 1, 0]
+    assert follow_evidence(labels, ev, 1.0).tolist() == [1, 1, 0, 1, 0]  # the 3D vote
+    assert follow_evidence(labels, ev, 0.0).tolist() == labels.tolist()
+    with pytest.raises(ValueError, match="min_ratio"):
+        follow_evidence(labels, ev, 1.5)
+    with pytest.raises(ValueError, match="N rows"):
+        follow_evidence(labels[:3], ev, 0.5)

@@ -291,3 +291,16 @@ def test_an_unlabelled_cluster_weighs_its_own_evidence_against_its_neighbours(
     out, parents = adopt_unlabelled(classes, pairs, counts, pooled, cfg)
     assert out.tolist() == [DUCK, adopted]
     assert parents.tolist() == [-1, parent]
+
+
+def test_gaussians_whose_class_changed_leave_their_instance() -> None:
+    objects = Instances(
+        np.array([0, 0, 1, 1, -1]), np.array([3, 4]), np.array([0.9, 0.8]), np.array([0, 1])
+    )
+    moved = objects.of_classes(np.array([3, 4, 4, 4, 2]))
+    assert moved.ids.tolist() == [0, -1, 1, 1, -1]
+    assert moved.classes.tolist() == [3, 4] and moved.n_instances == 2
+    none = Instances(np.full(3, -1), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64))
+    assert none.of_classes(np.array([0, 1, 2])).ids.tolist() == [-1, -1, -1]
+    with pytest.raises(ValueError, match="labels"):
+        objects.of_classes(np.array([3, 4]))

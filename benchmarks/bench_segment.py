@@ -252,6 +252,16 @@ def score_segmentation(
     }
 
 
+def capture_faults(scene_json: Path) -> dict[str, Any]:
+    """The handheld faults a synthetic scene was made with (``--synth``; older scenes: none)."""
+    made = json.loads(scene_json.read_text(encoding="utf-8"))
+    return {
+        "depth_sigma": made["noise_level"]["depth_sigma"],
+        "pose_error": made.get("pose_error", {"deg": 0.0, "m": 0.0}),
+        "motion_blur_px": made.get("motion_blur_px", 0.0),
+    }
+
+
 def score_run(work: Path, noise: str, layout: int, args: argparse.Namespace) -> dict[str, Any]:
     root = run_dir(work, noise, layout)
     saved = load_run(root / "run")
@@ -263,6 +273,8 @@ def score_run(work: Path, noise: str, layout: int, args: argparse.Namespace) -> 
         "layout": layout,
         "group": "heldout" if layout in args.heldout else "tuning",
         "run_seconds": saved.record.get("seconds", {}),
+        "capture_faults": capture_faults(root / "scene" / "scene.json"),
+        "pose_lr": saved.record["config"]["reconstruct"].get("pose_lr", 0.0),
         "baselines": baselines(saved, scorer, cfg),
     }
     with tempfile.TemporaryDirectory() as tmp:

@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any
 
 import pytest
 
-from benchmarks.bench_segment import markdown, overridden, summarise, synth_fields
+from benchmarks.bench_segment import (
+    capture_faults,
+    markdown,
+    overridden,
+    summarise,
+    synth_fields,
+)
 from dcseg.config import preset
 
 
@@ -64,3 +72,13 @@ def test_synth_fields_parse_faults_and_refuse_what_the_layout_sets() -> None:
     assert fields == {"pose_error_deg": 0.5, "motion_blur_px": 3, "depth_sigma": None}
     with pytest.raises(SystemExit, match="--synth seed"):
         synth_fields(["seed=4"])
+
+
+def test_capture_faults_read_from_scene_json(tmp_path: Path) -> None:
+    made = {"noise_level": {"depth_sigma": 0.003}, "pose_error": {"deg": 0.5, "m": 0.01}}
+    (tmp_path / "scene.json").write_text(json.dumps({**made, "motion_blur_px": 3}))
+    faults = capture_faults(tmp_path / "scene.json")
+    assert faults == {**made["noise_level"], "pose_error": made["pose_error"], "motion_blur_px": 3}
+    (tmp_path / "scene.json").write_text(json.dumps({"noise_level": {"depth_sigma": 0.0}}))
+    older = capture_faults(tmp_path / "scene.json")
+    assert older["pose_error"] == {"deg": 0.0, "m": 0.0} and older["motion_blur_px"] == 0.0

@@ -94,10 +94,10 @@ def run(args: argparse.Namespace) -> int:
     from dcseg.reconstruct.job import reconstruct_job
     from dcseg.sizes import summary as rules_summary
 
+    pipeline, options = _config(args)  # a bad option exits first, naming its flag
     if args.out.is_dir() and any(args.out.iterdir()) and not args.overwrite:
         sys.stderr.write(f"dcseg reconstruct: {args.out} is not empty; pass --overwrite\n")
         return 2
-    pipeline, options = _config(args)
     cfg = pipeline.reconstruct
     bar, on_progress = _progress_bar(cfg.iterations)
     try:

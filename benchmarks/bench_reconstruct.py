@@ -102,7 +102,7 @@ def main() -> int:
             dcseg("synth", str(capture), "--frames", "40", "--size", "320x240")
         name = args.name or ("synth_40x320x240" if args.capture is None else capture.name)
         out = args.keep or Path(tmp) / "out"
-        report = run_reconstruct(capture, out, ["--preset", args.preset, *extra])
+        report = run_reconstruct(capture, out, ["--preset", args.preset, "--overwrite", *extra])
     entry = summary(name, report, args)
     save(entry, args.results)
     keys = ("psnr", "depth_mae", "gaussians", "wall_seconds", "cpu_seconds", "peak_memory_mb")

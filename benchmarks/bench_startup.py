@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import statistics
 import subprocess
 import sys
@@ -79,11 +80,15 @@ def compare(
     trees: dict[str, Path],
     runs: int,
     extra: Any = None,
+    prepare: Any = None,
 ) -> dict[str, Any]:
-    """``runs`` rounds of ``cmd`` for every tree in turn; per tree a summary, then ratios."""
+    """``runs`` rounds of ``cmd`` for every tree in turn; per tree a summary, then ratios.
+    ``prepare`` (if given) runs before each measurement, ``extra`` after it adds to its row."""
     results: dict[str, list[dict[str, float]]] = {name: [] for name in trees}
     for _ in range(runs):
         for name, tree in trees.items():
+            if prepare is not None:
+                prepare()
             row = measure(cmd, tree)
             if extra is not None:
                 row |= extra()
@@ -133,12 +138,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         record["warmup_cold"] = summary(cold_runs)
         record["warmup_warm"] = summary(warm_runs)
 
-        for tree in trees.values():  # warm each tree's own kernel cache (the baseline may
-            out = Path(tmp) / "prime"  # have no warmup command: a short reconstruction does)
+        for name, tree in trees.items():  # warm each tree's own kernel cache (the baseline
+            out = Path(tmp) / f"prime-{name}"  # may have no warmup command: a reconstruction)
             measure(_reconstruct(python, args, out, 2), tree)
         out = Path(tmp) / "reconstruct"
         cmd = _reconstruct(python, args, out, args.iterations)
-        record["reconstruct"] = compare(cmd, trees, args.runs, extra=lambda: report_seconds(out))
+        record["reconstruct"] = compare(
+            cmd, trees, args.runs, extra=lambda: report_seconds(out),
+            prepare=lambda: shutil.rmtree(out, ignore_errors=True),  # OUT must be new or empty
+        )  # fmt: skip
         shown = [args.capture.name if c == str(args.capture.resolve()) else c for c in cmd[1:]]
         record["reconstruct"]["command"] = " ".join(shown).replace(str(out), "OUT")
     record["load_average_after"] = os.getloadavg()

@@ -40,12 +40,8 @@ def in_view(gaussians: Gaussians, camera: Camera, margin: float = 0.25) -> Tenso
     """``[N]`` mask of the Gaussians whose centres lie in front of ``camera`` and project within
     its image widened by ``margin`` of its size on every side: what the view can see while
     its pose moves by a degree or two (a 320 px wide view turns ~15 px per degree)."""
-    viewmat = camera.viewmat().to(gaussians.means)
-    cam = gaussians.means @ viewmat[:3, :3].T + viewmat[:3, 3]
-    z = cam[:, 2].clamp_min(1e-6)
-    k = camera.K.to(gaussians.means)
-    u = cam[:, 0] / z * k[0, 0] + k[0, 2]
-    v = cam[:, 1] / z * k[1, 1] + k[1, 2]
+    cam = camera.to_camera(gaussians.means)
+    u, v = camera.to_pixels(cam).unbind(1)
     du, dv = margin * camera.width, margin * camera.height
     inside = (u > -du) & (u < camera.width + du) & (v > -dv) & (v < camera.height + dv)
     return inside & (cam[:, 2] > 0.01)

@@ -67,14 +67,10 @@ def centre_depth_loss(means: Tensor, camera: Camera, depth: Tensor, band: float)
         The mean absolute depth offset of the counted centres; 0 (still differentiable) when
         none projects near its surface.
     """
-    rot = camera.c2w[:3, :3].to(means.dtype)
-    cam = (means - camera.c2w[:3, 3].to(means.dtype)) @ rot
+    cam = camera.to_camera(means)
     z = cam[:, 2]
-    k = camera.K.to(means.dtype)
     with torch.no_grad():
-        safe = z.clamp_min(1e-6)
-        u = torch.round(k[0, 0] * cam[:, 0] / safe + k[0, 2]).long()
-        v = torch.round(k[1, 1] * cam[:, 1] / safe + k[1, 2]).long()
+        u, v = torch.round(camera.to_pixels(cam)).long().unbind(1)
         inside = (z > 1e-6) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
         seen = torch.zeros_like(z)
         seen[inside] = depth[v[inside], u[inside]].to(z.dtype)

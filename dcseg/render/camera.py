@@ -49,6 +49,19 @@ class Camera:
         out[3, 3] = 1.0
         return out
 
+    def to_camera(self, points: Tensor) -> Tensor:
+        """``[N, 3]`` world ``points`` in this camera's frame (OpenCV axes, z forward), in their
+        dtype and on their device; differentiable in ``points``."""
+        return (points - self.c2w[:3, 3].to(points)) @ self.c2w[:3, :3].to(points)
+
+    def to_pixels(self, cam: Tensor) -> Tensor:
+        """``[N, 2]`` pixel coordinates ``(u, v)`` of camera-frame points ``cam`` (depth
+        clamped at 1e-6, so points behind the camera get finite, meaningless coordinates)."""
+        k = self.K.to(cam)
+        z = cam[:, 2].clamp_min(1e-6)
+        u = k[0, 0] * cam[:, 0] / z + k[0, 2]
+        return torch.stack([u, k[1, 1] * cam[:, 1] / z + k[1, 2]], dim=1)
+
     def to(self, device: torch.device | str, dtype: torch.dtype) -> Camera:
         """The same camera with its tensors on ``device`` in ``dtype``."""
         return Camera(

@@ -224,3 +224,17 @@ def test_gsplat_matches_reference() -> None:  # pragma: no cover - needs CUDA
     torch.testing.assert_close(gs.alpha, ref.alpha, rtol=1e-3, atol=2e-3)
     for a, b in zip(ref_grads, gs_grads, strict=True):
         torch.testing.assert_close(b, a, rtol=1e-2, atol=1e-2 * float(a.abs().max()))
+
+
+def test_camera_maps_points_to_its_frame_and_pixels() -> None:
+    c2w = torch.eye(4, dtype=torch.float64)
+    c2w[:3, :3] = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 deg
+    c2w[:3, 3] = torch.tensor([1.0, 2.0, 0.0])
+    k = torch.tensor([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]], dtype=torch.float64)
+    camera = Camera(c2w, k, 100, 80)
+    points = torch.tensor([[1.0, 2.0, 2.0], [1.0, 2.2, 2.0]], dtype=torch.float64)
+    cam = camera.to_camera(points)
+    assert torch.allclose(cam, torch.tensor([[0.0, 0.0, 2.0], [0.2, 0.0, 2.0]], dtype=cam.dtype))
+    assert torch.allclose(camera.viewmat()[:3, :3] @ points[1] + camera.viewmat()[:3, 3], cam[1])
+    uv = camera.to_pixels(cam)
+    assert torch.allclose(uv, torch.tensor([[50.0, 40.0], [60.0, 40.0]], dtype=uv.dtype))

@@ -94,15 +94,21 @@ def ensure_run(work: Path, noise: str, layout: int, args: argparse.Namespace) ->
     return run
 
 
+def key_value(item: str) -> tuple[str, Any]:
+    """``KEY=JSON`` as ``(KEY, value)``; a value that is not JSON is a string."""
+    key, _, text = item.partition("=")
+    try:
+        return key, json.loads(text)
+    except json.JSONDecodeError:
+        return key, text
+
+
 def synth_fields(items: Sequence[str]) -> dict[str, Any]:
     """``--synth`` ``KEY=JSON`` items as :class:`SynthConfig` fields (handheld faults:
     ``pose_error_deg``, ``pose_error_m``, ``motion_blur_px``, ``depth_sigma``)."""
-    fields = {}
-    for item in items:
-        key, _, text = item.partition("=")
-        if key in {"seed", "frames", "width", "height", "noise"}:
-            raise SystemExit(f"--synth {key}: set by the layout, --frames, --size or --noise")
-        fields[key] = json.loads(text)
+    fields = dict(key_value(item) for item in items)
+    for key in fields.keys() & {"seed", "frames", "width", "height", "noise"}:
+        raise SystemExit(f"--synth {key}: set by the layout, --frames, --size or --noise")
     return fields
 
 
@@ -193,11 +199,7 @@ def overridden(cfg: PipelineConfig, overrides: Sequence[str]) -> PipelineConfig:
     """``cfg`` with ``section.field=JSON`` overrides (``assign.complete=false``, ``scale=0.5``);
     a value that is not JSON is a string (``assign.maps_from=clusters``)."""
     for item in overrides:
-        key, _, text = item.partition("=")
-        try:
-            value = json.loads(text)
-        except json.JSONDecodeError:
-            value = text
+        key, value = key_value(item)
         section, _, name = key.rpartition(".")
         if section:
             cfg = replace(cfg, **{section: replace(getattr(cfg, section), **{name: value})})

@@ -99,8 +99,8 @@ def follow_evidence(
     ev = np.asarray(evidence, dtype=np.float64)
     if ev.ndim != 2 or out.shape != (len(ev),):
         raise ValueError(f"labels {out.shape} and evidence {ev.shape} must have N rows")
-    rows = np.arange(len(out))
-    own = np.where(out >= 0, ev[rows, np.clip(out, 0, max(ev.shape[1] - 1, 0))], 0.0)
+    padded = np.column_stack([ev, np.zeros(len(ev))])  # class -1 reads the zero column
+    own = padded[np.arange(len(out)), out]
     best = ev.max(axis=1, initial=0.0)
     flip = (ev.sum(axis=1) > 0) & (own < min_ratio * best)
     out[flip] = ev[flip].argmax(axis=1)

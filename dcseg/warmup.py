@@ -30,6 +30,8 @@ KERNEL_MODULES = (
     "dcseg.cluster.components",
     "dcseg.export.tsdf",
     "dcseg.reconstruct.depth_filter",
+    "dcseg.reconstruct.surface",
+    "dcseg.render.cpu_planar",
     "dcseg.render.blend_weights",
     "dcseg.render.numba_kernels",
     "dcseg.render.numba_projection",
@@ -132,13 +134,16 @@ def _run_tiny_scene(workdir: Path) -> None:
     from dcseg.export.tsdf import fuse
     from dcseg.pipeline import segment_scene, train_scene
     from dcseg.reconstruct import fit_gaussians
+    from dcseg.reconstruct.config import SURFACE_PRIORS
     from dcseg.segment import class_agreement
 
     capture, agnostic, semantic = tiny_capture()
     cfg = preset("fast")
+    priors: dict[str, Any] = dict(SURFACE_PRIORS)
     cfg = replace(
         cfg,
-        reconstruct=replace(cfg.reconstruct, iterations=3, holdout=2, backend="cpu"),
+        # with --surface-priors: their kernels too (the others run either way)
+        reconstruct=replace(cfg.reconstruct, iterations=3, holdout=2, backend="cpu", **priors),
         affinity=replace(cfg.affinity, iterations=3, rays=128),
         cache=replace(cfg.cache, memory_mb=1),
     )

@@ -23,7 +23,7 @@ from dcseg.reconstruct.init import auto_voxel_size
 from dcseg.reconstruct.losses import depth_l1, rgb_loss
 from dcseg.reconstruct.poses import PoseCorrections, corrected_camera, move_gaussians
 from dcseg.reconstruct.sh import eval_sh
-from dcseg.reconstruct.surface import centre_depth_loss, thickness_loss
+from dcseg.reconstruct.surface import centre_depth_grad, thickness_grad
 from dcseg.reconstruct.views import View, random_crop
 from dcseg.render import Camera, RenderOutput, render, render_planar
 
@@ -141,6 +141,14 @@ def _view_order(n_views: int, iterations: int, generator: torch.Generator) -> li
     return order[:iterations]
 
 
+def _add_grad(param: Tensor, grad: Tensor) -> None:
+    """``param.grad += grad`` (``param.grad = grad`` when it has none yet)."""
+    if param.grad is None:
+        param.grad = grad
+    else:
+        param.grad.add_(grad)
+
+
 @dataclass
 class _Trainer:
     """Mutable training state; one :meth:`step` per iteration."""
@@ -184,15 +192,13 @@ class _Trainer:
         """Add the gradients of the thickness and centre-depth terms (not in the step loss);
         ``camera`` is the view's camera at its refined pose."""
         cfg = self.cfg
-        terms: list[Tensor] = []
         if cfg.thickness_weight > 0:
-            terms.append(cfg.thickness_weight * thickness_loss(self.params["log_scales"]))
+            log_scales = self.params["log_scales"]
+            _add_grad(log_scales, cfg.thickness_weight * thickness_grad(log_scales))
         if cfg.centre_weight > 0:
             band = cfg.centre_band * auto_voxel_size(self.extent, cfg)
-            offset = centre_depth_loss(self.params["means"], camera, view.depth, band)
-            terms.append(cfg.centre_weight * offset)
-        if terms:
-            torch.autograd.backward(torch.stack(terms).sum())
+            means = self.params["means"]
+            _add_grad(means, cfg.centre_weight * centre_depth_grad(means, camera, view.depth, band))
 
     def _accumulate(self, camera: Camera) -> None:
         means = self.params["means"]

@@ -4,15 +4,21 @@ Three pieces, each optional (:class:`~dcseg.reconstruct.config.ReconstructConfig
 
 - :func:`disc_frames` starts every Gaussian as a disc in the plane of its neighbours
   (``init_thickness``) instead of an isotropic blob;
-- :func:`thickness_loss` keeps them thin: the mean of each Gaussian's smallest scale
-  (``thickness_weight``);
-- :func:`centre_depth_loss` pulls each centre that projects near the observed depth of the
+- :func:`thickness_grad` keeps them thin: the gradient of the mean of each Gaussian's
+  smallest scale (``thickness_weight``);
+- :func:`centre_depth_grad` pulls each centre that projects near the observed depth of the
   step's view onto it (``centre_weight``, ``centre_band``): depth from the first surface, not
   from the alpha blend the photometric and depth losses see.
+
+The two terms are simple enough that their gradients are written out and added to the
+parameters' gradients directly (no autograd graph over every Gaussian: ~8 ms a step on 120k).
 """
 
 from __future__ import annotations
 
+from typing import Any
+
+import numba
 import numpy as np
 import torch
 from numpy.typing import NDArray
@@ -21,6 +27,7 @@ from torch import Tensor
 
 from dcseg.geometry import local_axes
 from dcseg.render import Camera
+from dcseg.render.cpu_projection import camera_arrays, to_numpy
 
 NORMAL_NEIGHBOURS = 10
 """Neighbours whose spread gives a point's plane (principal axes of their covariance)."""
@@ -48,33 +55,68 @@ def disc_frames(points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArr
     return quats, spread
 
 
-def thickness_loss(log_scales: Tensor) -> Tensor:
-    """Mean over Gaussians of the smallest of their three scales (metres)."""
-    return log_scales.min(dim=1).values.exp().mean()
+def thickness_grad(log_scales: Tensor) -> Tensor:
+    """``[N, 3]`` gradient of the thickness term, the mean over Gaussians of the smallest of
+    their three scales (metres), with respect to ``log_scales``: ``s_min / N`` on each
+    Gaussian's smallest axis."""
+    smallest = log_scales.detach().min(dim=1)
+    grad = torch.zeros_like(log_scales, memory_format=torch.contiguous_format)
+    grad.scatter_(1, smallest.indices[:, None], smallest.values.exp()[:, None] / len(log_scales))
+    return grad
 
 
-def centre_depth_loss(means: Tensor, camera: Camera, depth: Tensor, band: float) -> Tensor:
-    """Mean ``|z - depth|`` of the centres that project within ``band`` of the observed depth.
+def centre_depth_grad(means: Tensor, camera: Camera, depth: Tensor, band: float) -> Tensor:
+    """``[N, 3]`` gradient of the centre-depth term with respect to ``means``.
+
+    The term is the mean ``|z - depth|`` over the centres that project within ``band`` of the
+    observed depth (their view depth ``z``; the observed depth at their pixel); farther ones
+    belong to other surfaces (occluded here) and are not counted. Its gradient moves each
+    counted centre along the view axis by ``sign(z - depth) / count``; zero when none counts.
 
     Args:
         means: ``[N, 3]`` Gaussian centres (world).
         camera: the view's camera (its size is ``depth``'s).
         depth: ``[H, W]`` observed depth in metres, 0 = invalid.
-        band: only centres whose view depth is within this distance (metres) of the observed
-            depth at their pixel count; farther ones belong to other surfaces (occluded here).
-
-    Returns:
-        The mean absolute depth offset of the counted centres; 0 (still differentiable) when
-        none projects near its surface.
+        band: the distance (metres) within which a centre counts.
     """
-    cam = camera.to_camera(means)
-    z = cam[:, 2]
-    with torch.no_grad():
-        u, v = torch.round(camera.to_pixels(cam)).long().unbind(1)
-        inside = (z > 1e-6) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-        seen = torch.zeros_like(z)
-        seen[inside] = depth[v[inside], u[inside]].to(z.dtype)
-        near = inside & (seen > 0) & ((z - seen).abs() < band)
-    if not bool(near.any()):
-        return means.sum() * 0.0
-    return (z[near] - seen[near]).abs().mean()
+    view, intr = camera_arrays(camera, means.dtype)
+    signs, count = _centre_signs(
+        to_numpy(means), view, intr, to_numpy(depth.to(torch.float64)), band
+    )
+    if count == 0:
+        return torch.zeros_like(means)
+    axis = torch.as_tensor(view[2, :3] / count)
+    return (torch.from_numpy(signs)[:, None] * axis).to(means.device, means.dtype)
+
+
+@numba.njit(cache=True, nogil=True)
+def _centre_signs(means: Any, view: Any, intr: Any, depth: Any, band: float) -> tuple[Any, int]:
+    """``sign(z - depth)`` per counted centre (0 elsewhere) and the number counted."""
+    n, height, width = means.shape[0], depth.shape[0], depth.shape[1]
+    signs = np.zeros(n)
+    count = 0
+    for i in range(n):
+        x, y, z = (
+            _to_camera(means, i, view, 0),
+            _to_camera(means, i, view, 1),
+            _to_camera(means, i, view, 2),
+        )
+        if not z > 1e-6:
+            continue
+        u, v = np.rint(intr[0] * x / z + intr[2]), np.rint(intr[1] * y / z + intr[3])
+        if not (0 <= u < width and 0 <= v < height):  # also NaN
+            continue
+        seen = depth[int(v), int(u)]
+        if seen > 0 and abs(z - seen) < band:
+            count += 1
+            signs[i] = np.sign(z - seen)
+    return signs, count
+
+
+@numba.njit(cache=True, nogil=True)
+def _to_camera(means: Any, i: int, view: Any, r: int) -> float:
+    """Coordinate ``r`` of centre ``i`` in the camera frame (``view`` = world-to-camera)."""
+    return float(
+        view[r, 0] * means[i, 0] + view[r, 1] * means[i, 1] + view[r, 2] * means[i, 2]
+        + view[r, 3]
+    )  # fmt: skip

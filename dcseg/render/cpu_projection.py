@@ -30,7 +30,7 @@ def project_cpu(gaussians: Gaussians, camera: Camera) -> Splats:
     return Splats(means2d, conics, opacities, depths, index, tile_min, tile_max)
 
 
-def _camera_arrays(
+def camera_arrays(
     camera: Camera, dtype: torch.dtype
 ) -> tuple[np.ndarray[Any, Any], np.ndarray[Any, Any]]:
     """``view [4, 4]`` (world-to-camera) and ``[fx, fy, cx, cy, W, H]`` as float64 arrays,
@@ -45,7 +45,7 @@ def _camera_arrays(
     return np.ascontiguousarray(view), intr
 
 
-def _numpy(t: Tensor) -> np.ndarray[Any, Any]:
+def to_numpy(t: Tensor) -> np.ndarray[Any, Any]:
     return np.ascontiguousarray(t.detach().cpu().numpy())
 
 
@@ -72,8 +72,8 @@ class ProjectGaussians(torch.autograd.Function):
     ) -> tuple[Tensor, ...]:
         """``means2d, conics, opacities, depths`` (differentiable) and ``index, tile_min/max``."""
         dtype = means.dtype
-        view, intr = _camera_arrays(camera, dtype)
-        arrays = [_numpy(t) for t in (means, quats, log_scales, logits)]
+        view, intr = camera_arrays(camera, dtype)
+        arrays = [to_numpy(t) for t in (means, quats, log_scales, logits)]
         near = float(np.asarray(NEAR_PLANE, dtype=arrays[0].dtype))
         depths, means2d, conics, opac, radii, visible = npj.project_all(
             arrays[0], arrays[1], arrays[2], arrays[3], view, intr, near
@@ -99,12 +99,12 @@ class ProjectGaussians(torch.autograd.Function):
         m = index.shape[0]
         shapes = ((m, 2), (m, 3), (m,), (m,))
         g = [
-            np.zeros(shape) if grad is None else _numpy(grad.to(torch.float64))
+            np.zeros(shape) if grad is None else to_numpy(grad.to(torch.float64))
             for grad, shape in zip(grads[:4], shapes, strict=True)
         ]
-        arrays = [_numpy(t) for t in (means, quats, log_scales, logits)]
+        arrays = [to_numpy(t) for t in (means, quats, log_scales, logits)]
         out = npj.project_backward(
-            _numpy(index), arrays[0], arrays[1], arrays[2], arrays[3], view, intr,
+            to_numpy(index), arrays[0], arrays[1], arrays[2], arrays[3], view, intr,
             g[0], g[1], g[2], g[3],
         )  # fmt: skip
         result = [torch.from_numpy(a) for a in out]

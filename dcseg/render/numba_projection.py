@@ -38,15 +38,15 @@ _F = TypeVar("_F", bound=Callable[..., Any])
 Array = Any  # numpy arrays; numba cannot see annotations, mypy cannot see numba
 
 
-def _jit(parallel: bool) -> Callable[[_F], _F]:
+def jit(parallel: bool) -> Callable[[_F], _F]:
     return cast(
         Callable[[_F], _F],
         numba.njit(parallel=parallel, cache=True, nogil=True, error_model="numpy"),
     )
 
 
-@_jit(parallel=False)
-def _rotation(quats: Array, i: int, work: Array, row: int) -> float:
+@jit(parallel=False)
+def rotation(quats: Array, i: int, work: Array, row: int) -> float:
     """Write the rotation of quaternion ``quats[i]`` (wxyz, any norm) into ``work[row:row+3]``.
 
     Returns the quaternion's norm (at least 1e-12, as ``F.normalize``).
@@ -66,7 +66,7 @@ def _rotation(quats: Array, i: int, work: Array, row: int) -> float:
     return norm
 
 
-@_jit(parallel=False)
+@jit(parallel=False)
 def _clamp_bounds(intr: Array) -> tuple[float, float, float, float]:
     """gsplat's view-direction clamp ``(lo_x, hi_x, lo_y, hi_y)`` on ``x / z`` and ``y / z``."""
     fx, fy, cx, cy, width, height = intr[0], intr[1], intr[2], intr[3], intr[4], intr[5]
@@ -80,8 +80,8 @@ def _clamp_bounds(intr: Array) -> tuple[float, float, float, float]:
     )
 
 
-@_jit(parallel=False)
-def _camera_point(means: Array, i: int, view: Array, work: Array) -> float:
+@jit(parallel=False)
+def camera_point(means: Array, i: int, view: Array, work: Array) -> float:
     """Fill row ``P`` with Gaussian ``i``'s camera-space mean; return its depth z."""
     for r in range(3):
         work[P, r] = view[r, 3]
@@ -90,7 +90,7 @@ def _camera_point(means: Array, i: int, view: Array, work: Array) -> float:
     return float(work[P, 2])
 
 
-@_jit(parallel=False)
+@jit(parallel=False)
 def _splat_matrices(
     quats: Array, log_scales: Array, i: int, view: Array, intr: Array, work: Array
 ) -> None:
@@ -106,7 +106,7 @@ def _splat_matrices(
     for k in range(3):
         work[JW, k] = j00 * view[0, k] + j02 * view[2, k]
         work[JW + 1, k] = j11 * view[1, k] + j12 * view[2, k]
-    _rotation(quats, i, work, M)
+    rotation(quats, i, work, M)
     for c in range(3):
         s = math.exp(log_scales[i, c])
         for r in range(3):
@@ -120,7 +120,7 @@ def _splat_matrices(
             )
 
 
-@_jit(parallel=False)
+@jit(parallel=False)
 def _covariance(work: Array) -> tuple[float, float, float]:
     """The dilated 2D covariance ``(sxx, sxy, syy)`` = ``A A^T + EPS2D I`` from row ``A``."""
     sxx, sxy, syy = EPS2D, 0.0, EPS2D
@@ -131,7 +131,7 @@ def _covariance(work: Array) -> tuple[float, float, float]:
     return sxx, sxy, syy
 
 
-@_jit(parallel=True)
+@jit(parallel=True)
 def project_all(
     means: Array,
     quats: Array,
@@ -156,7 +156,7 @@ def project_all(
     for chunk in prange((n + CHUNK - 1) // CHUNK):
         work = np.empty((WORK_ROWS, 3))
         for i in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-            z = _camera_point(means, i, view, work)
+            z = camera_point(means, i, view, work)
             depths[i] = z
             if not z >= near:  # culled (also NaN): skip the covariance
                 continue
@@ -171,7 +171,7 @@ def project_all(
     return depths, means2d, conics, opac, radii, visible
 
 
-@_jit(parallel=False)
+@jit(parallel=False)
 def _visible(
     o: float,
     sxx: float,
@@ -198,7 +198,7 @@ def _visible(
     return bool(finite and det > 0.0 and on_screen and nonzero)
 
 
-@_jit(parallel=False)
+@jit(parallel=False)
 def radix_argsort(keys: Array) -> Array:
     """Stable argsort of unsigned integer ``keys`` (uint32 or uint64): LSD radix sort by bytes.
 
@@ -227,7 +227,7 @@ def radix_argsort(keys: Array) -> Array:
     return order
 
 
-@_jit(parallel=True)
+@jit(parallel=True)
 def gather_splats(
     index: Array,
     like: Array,
@@ -261,7 +261,7 @@ def gather_splats(
     return out_means, out_conics, out_opac, out_depths, lo, hi
 
 
-@_jit(parallel=True)
+@jit(parallel=True)
 def project_backward(
     index: Array,
     means: Array,
@@ -288,7 +288,7 @@ def project_backward(
         work = np.empty((WORK_ROWS, 3))
         for k in range(chunk * CHUNK, min(m, (chunk + 1) * CHUNK)):
             i = index[k]
-            _camera_point(means, i, view, work)
+            camera_point(means, i, view, work)
             _splat_matrices(quats, log_scales, i, view, intr, work)
             _covariance_grad(work, grad_conics, k)
             _jacobian_grad(work, view, intr, grad_means2d, k)
@@ -303,7 +303,7 @@ def project_backward(
     return g_means, g_quats, g_scales, g_logits
 
 
-@_jit(parallel=False)
+@jit(parallel=False)
 def _covariance_grad(work: Array, grad_conics: Array, k: int) -> None:
     """Fill rows ``GA`` (d/dA), ``GJW`` (d/d(J W)) and ``GM`` (d/d(R S)) from splat ``k``'s
     conic gradient."""
@@ -331,7 +331,7 @@ def _covariance_grad(work: Array, grad_conics: Array, k: int) -> None:
                 work[GM + k2, c] += work[JW + r, k2] * work[GA + r, c]
 
 
-@_jit(parallel=False)
+@jit(parallel=False)
 def _jacobian_grad(work: Array, view: Array, intr: Array, grad_means2d: Array, k: int) -> None:
     """Fill row ``GP``: d/d(camera-space mean) through ``J`` (with its clamp) and the projected
     mean of splat ``k``; row ``GJ`` is scratch."""
@@ -361,13 +361,13 @@ def _jacobian_grad(work: Array, view: Array, intr: Array, grad_means2d: Array, k
             work[GP, 2] -= g_t * z * work[P, axis] / (z * z)
 
 
-@_jit(parallel=False)
+@jit(parallel=False)
 def _rotation_scale_grad(
     quats: Array, log_scales: Array, i: int, work: Array, g_quats: Array, g_scales: Array
 ) -> None:
     """Rows ``g_quats[i]`` and ``g_scales[i]`` from row ``GM`` (d/d(R S)); rows ``R`` and
     ``GR`` are scratch."""
-    norm = _rotation(quats, i, work, R)
+    norm = rotation(quats, i, work, R)
     for c in range(3):
         s = math.exp(log_scales[i, c])
         g_s = 0.0
@@ -375,6 +375,13 @@ def _rotation_scale_grad(
             work[GR + row, c] = work[GM + row, c] * s
             g_s += work[GM + row, c] * work[R + row, c]
         g_scales[i, c] = g_s * s
+    rotation_grad(quats, i, norm, work, g_quats)
+
+
+@jit(parallel=False)
+def rotation_grad(quats: Array, i: int, norm: float, work: Array, g_quats: Array) -> None:
+    """Row ``g_quats[i]`` from rows ``GR`` (d/d(rotation matrix) of quaternion ``quats[i]``,
+    whose norm :func:`rotation` returned), through the normalisation."""
     w, x, y, z = (quats[i, 0] / norm, quats[i, 1] / norm, quats[i, 2] / norm, quats[i, 3] / norm)
     g00, g01, g02 = work[GR, 0], work[GR, 1], work[GR, 2]
     g10, g11, g12 = work[GR + 1, 0], work[GR + 1, 1], work[GR + 1, 2]

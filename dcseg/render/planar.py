@@ -23,6 +23,7 @@ from torch import Tensor
 
 from dcseg.gaussians import Gaussians
 from dcseg.render.api import render
+from dcseg.render.backend import select_backend
 from dcseg.render.camera import Camera, RenderOutput
 from dcseg.render.projection import quat_to_rotmat
 
@@ -32,12 +33,22 @@ MIN_INVERSE_DEPTH = 1e-3
 """Floor of the blended inverse depth (1/m): a plane extrapolated past its horizon is 1 km away."""
 
 
-def depth_planes(gaussians: Gaussians, camera: Camera) -> Tensor:
+def depth_planes(gaussians: Gaussians, camera: Camera, *, backend: str | None = None) -> Tensor:
     """``[N, 3]`` per Gaussian ``(q0, a, b)``: inverse depth ``q0 + a (u - cx) + b (v - cy)``.
 
     Differentiable with respect to means, quats and log scales. Gaussians behind the camera get
-    zero slope; the rasterizer culls them anyway.
+    zero slope; the rasterizer culls them anyway. ``backend`` as :func:`~dcseg.render.render`:
+    the ``cpu`` backend computes the same in numba kernels (:mod:`dcseg.render.cpu_planar`).
     """
+    if select_backend(gaussians.device, backend) == "cpu":
+        from dcseg.render.cpu_planar import depth_planes_cpu
+
+        return depth_planes_cpu(gaussians, camera)
+    return planes_reference(gaussians, camera)
+
+
+def planes_reference(gaussians: Gaussians, camera: Camera) -> Tensor:
+    """:func:`depth_planes` in PyTorch operations (any device; the numba kernels' oracle)."""
     cam = camera.to(gaussians.means.device, gaussians.means.dtype)
     rot = cam.c2w[:3, :3]
     fx, fy = cam.K[0, 0], cam.K[1, 1]
@@ -69,7 +80,7 @@ def render_planar(
 ) -> RenderOutput:
     """:func:`~dcseg.render.api.render` (no background) with the planar depth of the module doc."""
     channels = values.shape[1]
-    planes = depth_planes(gaussians, camera).to(values.dtype)
+    planes = depth_planes(gaussians, camera, backend=backend).to(values.dtype)
     out = render(gaussians, torch.cat([values, planes], dim=1), camera, backend=backend)
     k = camera.K.to(out.values.device, out.values.dtype)
     u = torch.arange(camera.width, device=k.device, dtype=k.dtype) - k[0, 2]

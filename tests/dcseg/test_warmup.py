@@ -19,7 +19,8 @@ def test_kernel_modules_lists_every_module_that_defines_a_kernel() -> None:
     defining = {
         ".".join(path.relative_to(root.parent).with_suffix("").parts)
         for path in root.rglob("*.py")
-        if re.search(r"numba\.njit\(", path.read_text(encoding="utf-8"))
+        # numba.njit directly or numba_projection's jit decorator
+        if re.search(r"numba\.njit\(|^@jit\(", path.read_text(encoding="utf-8"), re.MULTILINE)
     }
     assert defining == set(KERNEL_MODULES)
 

@@ -16,7 +16,7 @@ from dcseg.reconstruct.config import FAST, ReconstructConfig
 from dcseg.reconstruct.evaluate import evaluate
 from dcseg.reconstruct.fit import optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
-from dcseg.reconstruct.surface import centre_depth_loss, disc_frames, thickness_loss
+from dcseg.reconstruct.surface import centre_depth_grad, disc_frames, thickness_grad
 from dcseg.reconstruct.views import make_view
 from dcseg.render import Camera
 from dcseg.render.projection import scaled_rotations
@@ -46,9 +46,14 @@ def test_disc_frames_of_too_few_points_are_identity() -> None:
     assert np.array_equal(spread, np.ones((3, 3)))
 
 
-def test_thickness_loss_is_the_mean_smallest_scale() -> None:
-    log_scales = torch.log(torch.tensor([[0.1, 0.02, 0.3], [0.5, 0.5, 0.04]]))
-    assert float(thickness_loss(log_scales)) == pytest.approx(0.03)
+def test_thickness_grad_is_the_gradient_of_the_mean_smallest_scale() -> None:
+    log_scales = torch.log(torch.tensor([[0.1, 0.02, 0.3], [0.5, 0.5, 0.04], [0.2, 0.3, 0.25]]))
+    leaf = log_scales.clone().requires_grad_(True)
+    term = leaf.min(dim=1).values.exp().mean()  # the term: 0.02 + 0.04 + 0.2, over 3
+    (expected,) = torch.autograd.grad(term, leaf)
+    grad = thickness_grad(log_scales)
+    assert torch.allclose(grad, expected)
+    assert float(grad[0, 1]) == pytest.approx(0.02 / 3) and int((grad != 0).sum()) == 3
 
 
 def _camera(width: int = 8, height: int = 6) -> Camera:
@@ -56,7 +61,31 @@ def _camera(width: int = 8, height: int = 6) -> Camera:
     return Camera(torch.eye(4), k, width, height)  # at the origin, looking along +z
 
 
-def test_centre_depth_loss_counts_the_centres_near_the_observed_depth() -> None:
+def _turned_camera() -> Camera:
+    """:func:`_camera` turned 30 degrees about y and moved: the view axis is not world z."""
+    c2w = torch.eye(4)
+    angle = math.radians(30)
+    c2w[:3, :3] = torch.tensor(
+        [[math.cos(angle), 0.0, math.sin(angle)], [0.0, 1.0, 0.0],
+         [-math.sin(angle), 0.0, math.cos(angle)]]
+    )  # fmt: skip
+    c2w[:3, 3] = torch.tensor([0.3, 0.1, -0.2])
+    return Camera(c2w, _camera().K, 8, 6)
+
+
+def _centre_term(means: torch.Tensor, camera: Camera, depth: torch.Tensor, band: float) -> Any:
+    """The centre-depth term written with autograd: the oracle of its gradient."""
+    cam = camera.to_camera(means)
+    z = cam[:, 2]
+    u, v = torch.round(camera.to_pixels(cam.detach())).long().unbind(1)
+    inside = (z > 1e-6) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    seen = torch.zeros_like(z)
+    seen[inside] = depth[v[inside], u[inside]]
+    near = inside & (seen > 0) & ((z - seen).abs() < band)
+    return (z[near] - seen[near]).abs().mean(), near
+
+
+def test_centre_depth_grad_pulls_the_centres_near_the_observed_depth() -> None:
     depth = torch.full((6, 8), 2.0)
     depth[0, 0] = 0.0  # invalid pixel
     means = torch.tensor(
@@ -67,23 +96,33 @@ def test_centre_depth_loss_counts_the_centres_near_the_observed_depth() -> None:
             [-0.7, -0.5, 2.0],  # projects onto the invalid pixel (0, 0): not counted
             [50.0, 0.0, 2.0],  # outside the view
             [0.0, 0.0, -2.0],  # behind the camera
-        ],
-        requires_grad=True,
+            [float("nan"), 0.0, 2.0],  # not a number
+        ]
     )
-    loss = centre_depth_loss(means, _camera(), depth, band=0.1)
-    assert float(loss.detach()) == pytest.approx(0.02, abs=1e-6)
-    torch.autograd.backward(loss)
-    assert means.grad is not None
-    assert means.grad[0, 2] > 0 and means.grad[1, 2] < 0  # both pulled onto the surface
-    assert torch.all(means.grad[2:] == 0)
+    grad = centre_depth_grad(means, _camera(), depth, band=0.1)
+    assert torch.allclose(grad[:2], torch.tensor([[0.0, 0.0, 0.5], [0.0, 0.0, -0.5]]))
+    assert torch.all(grad[2:] == 0)  # both counted centres pulled onto the surface, no other
 
 
-def test_centre_depth_loss_without_counted_centres_is_zero_and_differentiable() -> None:
-    means = torch.tensor([[0.0, 0.0, 5.0]], requires_grad=True)
-    loss = centre_depth_loss(means, _camera(), torch.full((6, 8), 2.0), band=0.1)
-    assert float(loss.detach()) == 0.0
-    torch.autograd.backward(loss)
-    assert means.grad is not None and torch.all(means.grad == 0)
+def test_centre_depth_grad_is_the_gradient_of_the_term_from_any_pose() -> None:
+    camera = _turned_camera()
+    gen = torch.Generator().manual_seed(0)
+    depth = 1.5 + torch.rand(6, 8, generator=gen)
+    pixels = torch.rand(200, 2, generator=gen) * torch.tensor([8.0, 6.0]) - 0.5
+    z = 1.5 + 1.2 * torch.rand(200, generator=gen)
+    rays = torch.cat([(pixels - camera.K[:2, 2]) / camera.K[[0, 1], [0, 1]], torch.ones(200, 1)], 1)
+    means = (rays * z[:, None]) @ camera.c2w[:3, :3].T + camera.c2w[:3, 3]
+    leaf = means.clone().requires_grad_(True)
+    term, near = _centre_term(leaf, camera, depth, band=0.3)
+    (expected,) = torch.autograd.grad(term, leaf)
+    assert 20 < int(near.sum()) < 200  # some counted, some not
+    assert torch.allclose(centre_depth_grad(means, camera, depth, band=0.3), expected, atol=1e-6)
+
+
+def test_centre_depth_grad_without_counted_centres_is_zero() -> None:
+    means = torch.tensor([[0.0, 0.0, 5.0]])
+    grad = centre_depth_grad(means, _camera(), torch.full((6, 8), 2.0), band=0.1)
+    assert grad.shape == (1, 3) and torch.all(grad == 0)
 
 
 @pytest.mark.parametrize(

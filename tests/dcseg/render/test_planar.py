@@ -10,7 +10,7 @@ from torch import Tensor
 
 from dcseg.gaussians import Gaussians
 from dcseg.render import render, render_planar
-from dcseg.render.planar import depth_planes
+from dcseg.render.planar import depth_planes, planes_reference
 from tests.dcseg.render.scenes import camera, parameters, scene, values
 
 
@@ -83,3 +83,74 @@ def test_planar_depth_matches_between_backends() -> None:
     ref = render_planar(gaussians, values(30, 3).detach(), cam, backend="reference")
     cpu = render_planar(gaussians, values(30, 3).detach(), cam, backend="cpu")
     assert torch.allclose(ref.depth, cpu.depth, atol=1e-6)
+
+
+def awkward_scene(dtype: torch.dtype) -> Gaussians:
+    """Random Gaussians plus the planes' edge cases: behind the camera, seen edge-on (capped
+    slope), a plane through the camera centre (zero slope denominator), a round disc."""
+    base = scene(60, dtype=dtype, grad=False)
+    extra_means = torch.tensor(
+        [[0.2, 0.1, -1.0], [0.3, 0.0, 2.0], [0.0, 0.0, 2.0], [0.1, 0.1, 3.0]], dtype=dtype
+    )
+    edge_on = [math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0]
+    extra_quats = torch.tensor(
+        [[1.0, 0.2, 0.0, 0.0], edge_on, edge_on,
+         [0.9, 0.1, 0.3, 0.0]], dtype=dtype,
+    )  # fmt: skip
+    extra_scales = torch.tensor(
+        [[0.1, 0.1, 0.001], [0.2, 0.2, 1e-5], [0.2, 0.3, 1e-4], [0.05, 0.05, 0.01]], dtype=dtype
+    ).log()
+    tensors = [
+        torch.cat([base.means, extra_means]),
+        torch.cat([base.quats, extra_quats]),
+        torch.cat([base.log_scales, extra_scales]),
+    ]
+    means, quats, log_scales = (t.clone().requires_grad_(True) for t in tensors)
+    n = means.shape[0]
+    return Gaussians(
+        means, quats, log_scales, torch.zeros(n, dtype=dtype), base.sh[:1].expand(n, 1, 3)
+    )
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_the_cpu_kernels_compute_the_reference_planes_and_gradients(dtype: torch.dtype) -> None:
+    cam = camera(dtype=dtype)
+    turn = torch.tensor(math.radians(20), dtype=dtype)  # a camera that is not the world frame
+    cam.c2w[:3, :3] = torch.tensor(
+        [[math.cos(turn), 0, math.sin(turn)], [0, 1, 0], [-math.sin(turn), 0, math.cos(turn)]],
+        dtype=dtype,
+    )
+    cam.c2w[:3, 3] = torch.tensor([0.1, -0.05, 0.2], dtype=dtype)
+    gaussians = awkward_scene(dtype)
+    ref = planes_reference(gaussians, cam)
+    cpu = depth_planes(gaussians, cam, backend="cpu")
+    tolerance = 1e-12 if dtype == torch.float64 else 1e-5
+    assert torch.allclose(cpu, ref, rtol=tolerance, atol=tolerance)
+    assert float(ref[-3:, 1:].detach().abs().max()) > 0  # the edge cases are not all flat
+    weights = torch.randn(ref.shape, generator=torch.Generator().manual_seed(3), dtype=dtype)
+    inputs = [gaussians.means, gaussians.quats, gaussians.log_scales]
+    expected = torch.autograd.grad((ref * weights).sum(), inputs)
+    got = torch.autograd.grad((cpu * weights).sum(), inputs)
+    for name, want, have in zip(("means", "quats", "log_scales"), expected, got, strict=True):
+        scale = float(want.abs().max())
+        assert torch.allclose(have, want, rtol=tolerance, atol=tolerance * scale), name
+
+
+def test_the_cpu_planes_pass_gradcheck() -> None:
+    cam = camera()
+    gaussians = awkward_scene(torch.float64)
+    # not the Gaussian behind the camera (1 / 1e-6 is too steep for finite differences) nor
+    # the round disc (which of two equal scales is the middle one is arbitrary: a kink)
+    smooth = [*range(60), 61, 62]
+    inputs = tuple(
+        t.detach()[smooth].requires_grad_(True)
+        for t in (gaussians.means, gaussians.quats, gaussians.log_scales)
+    )
+
+    def planes(means: Tensor, quats: Tensor, log_scales: Tensor) -> Tensor:
+        moved = Gaussians(
+            means, quats, log_scales, torch.zeros(62, dtype=torch.float64), gaussians.sh[smooth]
+        )
+        return depth_planes(moved, cam, backend="cpu")
+
+    assert torch.autograd.gradcheck(planes, inputs, eps=1e-7, atol=1e-5)

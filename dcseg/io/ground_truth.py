@@ -102,13 +102,16 @@ def _vertex_data(path: Path, shown: str) -> NDArray[Any]:
         raise InputError.single(shown, reason)
     if element.count == 0:
         raise InputError.single(shown, "vertex element is empty: no ground-truth points")
-    data: NDArray[Any] = element.data
+    data: NDArray[Any] = np.array(element.data)  # a copy: the file is not held open
     return data
 
 
 def _parse(path: Path, shown: str) -> plyfile.PlyData:
+    # memory-mapped (copy-on-write): plyfile reads an unmapped binary element one property of
+    # one vertex at a time (4.8 s for 294k points, against ~10 ms mapped); ASCII files and
+    # list properties still take plyfile's element-by-element path
     try:
-        return plyfile.PlyData.read(str(path), mmap=False)
+        return plyfile.PlyData.read(str(path), mmap="c")
     except (plyfile.PlyParseError, ValueError, EOFError, IndexError, OSError) as err:
         raise InputError.single(shown, f"not a readable PLY file: {err}") from err
 

@@ -29,6 +29,10 @@ from dcseg.render.planar import MAX_TILT
 
 MIN_Z, MIN_C, MIN_SCALE = 1e-6, 1e-6, 1e-12
 """The floors of the PyTorch function: view depth, slope denominator, middle scale."""
+NORM, G_MEAN, G_NORMAL, G_FLAT = P + 1, P + 2, P + 3, P + 4
+"""Rows of the per-chunk scratch array (after ``P``, the camera-space mean): the quaternion's
+norm, d/d(camera-space mean), d/d(camera-space normal), d/d(flatness); rows ``R`` hold the
+rotation and ``GR`` its gradient, as in :mod:`dcseg.render.numba_projection`."""
 
 
 def depth_planes_cpu(gaussians: Gaussians, camera: Camera) -> Tensor:
@@ -95,7 +99,7 @@ def _normal(
     n0, n1, n2 = _turned(view, work, 0, lo), _turned(view, work, 1, lo), _turned(view, work, 2, lo)
     s_lo, s_mid = math.exp(log_scales[i, lo]), max(math.exp(log_scales[i, mid]), MIN_SCALE)
     flat = min(max(1.0 - s_lo / s_mid, 0.0), 1.0)
-    work[P + 1, 0] = rotation_norm  # kept for the backward
+    work[NORM, 0] = rotation_norm  # kept for the backward
     return n0, n1, n2, flat, lo, mid
 
 
@@ -141,8 +145,8 @@ def planes_backward(
             _plane_grad(means, quats, log_scales, i, view, intr, grad, work)
             for c in range(3):
                 g_means[i, c] = (
-                    view[0, c] * work[P + 2, 0] + view[1, c] * work[P + 2, 1]
-                    + view[2, c] * work[P + 2, 2]
+                    view[0, c] * work[G_MEAN, 0] + view[1, c] * work[G_MEAN, 1]
+                    + view[2, c] * work[G_MEAN, 2]
                 )  # fmt: skip
             _normal_grad(quats, log_scales, i, view, work, g_quats, g_scales)
     return g_means, g_quats, g_scales
@@ -153,8 +157,8 @@ def _plane_grad(
     means: Array, quats: Array, log_scales: Array, i: int, view: Array, intr: Array,
     grad: Array, work: Array,
 ) -> None:  # fmt: skip
-    """Rows of ``work`` for Gaussian ``i``: ``P + 2`` = d/d(camera-space mean), ``P + 3`` =
-    d/d(camera-space normal), ``P + 4, 0`` = d/d(flatness); rows ``R`` hold its rotation."""
+    """Fill the rows ``G_MEAN``, ``G_NORMAL`` and ``G_FLAT`` of ``work`` for Gaussian ``i``
+    (rows ``R`` then hold its rotation, ``NORM`` its quaternion's norm)."""
     fx, fy = intr[0], intr[1]
     npj.camera_point(means, i, view, work)
     x, y, p2 = work[P, 0], work[P, 1], work[P, 2]
@@ -171,20 +175,20 @@ def _plane_grad(
     g_x, g_y, g_z = -g_q * a * fx / z, -g_q * b * fy / z, -g_q / (z * z)
     g_z += g_q * (a * u0 + b * v0) / z - (g_a * a + g_b * b) / z
     g_tu, g_tv = g_a / (z * fx), g_b / (z * fy)
-    work[P + 4, 0] = g_tu * cu + g_tv * cv  # d/d(flatness)
+    work[G_FLAT, 0] = g_tu * cu + g_tv * cv  # d/d(flatness)
     g_ru = g_tu * flat if -MAX_TILT <= ru <= MAX_TILT else 0.0
     g_rv = g_tv * flat if -MAX_TILT <= rv <= MAX_TILT else 0.0
-    work[P + 3, 0], work[P + 3, 1], work[P + 3, 2] = g_ru / c, g_rv / c, 0.0
+    work[G_NORMAL, 0], work[G_NORMAL, 1], work[G_NORMAL, 2] = g_ru / c, g_rv / c, 0.0
     g_p2 = 0.0
     if abs(c_raw) >= MIN_C:
         g_c = -(g_ru * n0 + g_rv * n1) / (c * c)
         for k, coordinate in ((0, x), (1, y), (2, p2)):
-            work[P + 3, k] += g_c * coordinate / z
+            work[G_NORMAL, k] += g_c * coordinate / z
         g_x, g_y, g_p2 = g_x + g_c * n0 / z, g_y + g_c * n1 / z, g_c * n2 / z
         g_z -= g_c * c_raw / z
     if p2 >= MIN_Z:
         g_p2 += g_z
-    work[P + 2, 0], work[P + 2, 1], work[P + 2, 2] = g_x, g_y, g_p2
+    work[G_MEAN, 0], work[G_MEAN, 1], work[G_MEAN, 2] = g_x, g_y, g_p2
 
 
 @jit(parallel=False)
@@ -194,12 +198,14 @@ def _normal_grad(
 ) -> None:  # fmt: skip
     """Rows ``g_quats[i]`` and ``g_scales[i]`` from d/d(normal) and d/d(flatness) in ``work``."""
     lo, mid = _smallest_two(log_scales, i)
-    norm = work[P + 1, 0]
+    norm = work[NORM, 0]
     for r in range(3):
         for c in range(3):
             work[GR + r, c] = 0.0
         work[GR + r, lo] = (
-            view[0, r] * work[P + 3, 0] + view[1, r] * work[P + 3, 1] + view[2, r] * work[P + 3, 2]
+            view[0, r] * work[G_NORMAL, 0]
+            + view[1, r] * work[G_NORMAL, 1]
+            + view[2, r] * work[G_NORMAL, 2]
         )
     npj.rotation_grad(quats, i, norm, work, g_quats)
     s_lo, s_mid_raw = math.exp(log_scales[i, lo]), math.exp(log_scales[i, mid])
@@ -207,7 +213,7 @@ def _normal_grad(
     ratio = s_lo / s_mid
     if not 0.0 <= 1.0 - ratio <= 1.0:
         return
-    g_flat = work[P + 4, 0]
+    g_flat = work[G_FLAT, 0]
     g_scales[i, lo] = -g_flat * ratio
     if s_mid_raw >= MIN_SCALE:
         g_scales[i, mid] = g_flat * ratio

@@ -28,6 +28,7 @@ from torch import Tensor
 from dcseg.geometry import local_axes
 from dcseg.render import Camera
 from dcseg.render.cpu_projection import camera_arrays, to_numpy
+from dcseg.render.numba_projection import P, camera_point
 
 NORMAL_NEIGHBOURS = 10
 """Neighbours whose spread gives a point's plane (principal axes of their covariance)."""
@@ -80,9 +81,7 @@ def centre_depth_grad(means: Tensor, camera: Camera, depth: Tensor, band: float)
         band: the distance (metres) within which a centre counts.
     """
     view, intr = camera_arrays(camera, means.dtype)
-    signs, count = _centre_signs(
-        to_numpy(means), view, intr, to_numpy(depth.to(torch.float64)), band
-    )
+    signs, count = _centre_signs(to_numpy(means), view, intr, to_numpy(depth), band)
     if count == 0:
         return torch.zeros_like(means)
     axis = torch.as_tensor(view[2, :3] / count)
@@ -94,16 +93,14 @@ def _centre_signs(means: Any, view: Any, intr: Any, depth: Any, band: float) -> 
     """``sign(z - depth)`` per counted centre (0 elsewhere) and the number counted."""
     n, height, width = means.shape[0], depth.shape[0], depth.shape[1]
     signs = np.zeros(n)
+    work = np.empty((1, 3))  # row P of the projection's scratch rows: the camera-frame centre
     count = 0
     for i in range(n):
-        x, y, z = (
-            _to_camera(means, i, view, 0),
-            _to_camera(means, i, view, 1),
-            _to_camera(means, i, view, 2),
-        )
+        z = camera_point(means, i, view, work)
         if not z > 1e-6:
             continue
-        u, v = np.rint(intr[0] * x / z + intr[2]), np.rint(intr[1] * y / z + intr[3])
+        u = np.rint(intr[0] * work[P, 0] / z + intr[2])
+        v = np.rint(intr[1] * work[P, 1] / z + intr[3])
         if not (0 <= u < width and 0 <= v < height):  # also NaN
             continue
         seen = depth[int(v), int(u)]
@@ -111,12 +108,3 @@ def _centre_signs(means: Any, view: Any, intr: Any, depth: Any, band: float) -> 
             count += 1
             signs[i] = np.sign(z - seen)
     return signs, count
-
-
-@numba.njit(cache=True, nogil=True)
-def _to_camera(means: Any, i: int, view: Any, r: int) -> float:
-    """Coordinate ``r`` of centre ``i`` in the camera frame (``view`` = world-to-camera)."""
-    return float(
-        view[r, 0] * means[i, 0] + view[r, 1] * means[i, 1] + view[r, 2] * means[i, 2]
-        + view[r, 3]
-    )  # fmt: skip

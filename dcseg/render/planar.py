@@ -52,7 +52,7 @@ def planes_reference(gaussians: Gaussians, camera: Camera) -> Tensor:
     cam = camera.to(gaussians.means.device, gaussians.means.dtype)
     rot = cam.c2w[:3, :3]
     fx, fy = cam.K[0, 0], cam.K[1, 1]
-    p = (gaussians.means - cam.c2w[:3, 3]) @ rot  # camera frame
+    p = cam.to_camera(gaussians.means)
     z = p[:, 2].clamp_min(1e-6)
     axes = quat_to_rotmat(gaussians.quats)
     scales, order = gaussians.log_scales.exp().sort(dim=1)

@@ -7,16 +7,23 @@ without gradient: they are piecewise constant in the cosines.
 Speed: the ``[T, S, S]`` work is memory-bound, so it runs over blocks of rows (cache-sized
 ``[T, B, S - r0]`` slabs, columns of the upper triangle only), and the loss is written as
 ``sum_t sum_pq k_t(p, q) C_t(p, q)`` with coefficients ``k`` fixed under ``no_grad`` (pair sets,
-``G``, the ``max(C, 0)`` switch), so no differentiable ``[T, S, S]`` cosine tensor is kept.
-On the CPU the elementwise passes over each slab (min/max over scales, coefficients) are fused
-numba kernels (:mod:`dcseg.affinity.kernels`); other devices use the PyTorch expressions.
+``G``, the ``max(C, 0)`` switch), so no differentiable ``[T, S, S]`` cosine tensor is kept;
+the pair term's gradient is built in the same pass over the blocks (:class:`_PairTerm`).
+On the CPU the elementwise passes (min/max over scales, pair selection and weights,
+coefficients) are fused numba kernels (:mod:`dcseg.affinity.kernels`); other devices use the
+PyTorch expressions. Targets plus loss of a 1000-ray, 10-scale step: 56 -> 22-25 ms.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+from torch.autograd.function import once_differentiable
 
 from dcseg.affinity import kernels
 
@@ -62,19 +69,67 @@ def contrastive_loss(
         The scalar loss.
     """
     phi = F.normalize(features[None, :, :] * gates[:, None, :], dim=-1)  # [T, S, D]
-    blocks = _row_blocks(phi.shape[1], block_rows)
-    with torch.no_grad():
-        cos = [phi[:, r0:r1] @ phi[:, r0:].transpose(1, 2) for r0, r1 in blocks]
-        low, high = _extremes(cos, affinity, blocks, phi.shape[1])
-        pos, neg = _select(low, high, affinity, draw, pos_threshold, neg_threshold)
-        a, b = _pair_scales(weights.to(phi.dtype), pos, neg, phi.shape[0])
-    pairs = phi.new_zeros(())
-    for (r0, r1), c in zip(blocks, cos, strict=True):
-        with torch.no_grad():
-            coef = _coefficients(c, affinity[:, r0:r1, r0:], a[r0:r1, r0:], b[r0:r1, r0:])
-        pairs = pairs + (phi[:, r0:r1] * (coef @ phi[:, r0:])).sum()
+    mining = _Mining(affinity, weights, draw, pos_threshold, neg_threshold, block_rows)
+    pairs: Tensor = _PairTerm.apply(phi, mining)  # type: ignore[no-untyped-call]
     norm = features.norm(dim=-1).mean() if features.shape[0] else features.new_zeros(())
     return pairs + norm_weight * (1.0 - norm) ** 2
+
+
+@dataclass(frozen=True)
+class _Mining:
+    """What fixes the pair term's coefficients besides the cosines (see contrastive_loss)."""
+
+    affinity: Tensor
+    weights: Tensor
+    draw: Tensor
+    pos_threshold: float
+    neg_threshold: float
+    block_rows: int
+
+
+class _PairTerm(torch.autograd.Function):
+    """``sum_t sum_pq k_t(p, q) C_t(p, q)`` of ``phi [T, S, D]`` with ``k`` held constant.
+
+    Its gradient ``sum_q k(p, q) phi_q`` (rows) plus ``sum_p k(p, q) phi_p`` (columns) is built
+    in the forward pass, block by block, from the same products as the value: no ``[T, B, S]``
+    coefficient block is kept for the backward pass and no per-block autograd graph is built.
+    """
+
+    @staticmethod
+    def forward(ctx: Any, phi: Tensor, mining: _Mining) -> Tensor:
+        """The pair term's value; its gradient is saved for :meth:`backward`."""
+        value, grad = _pair_value_and_grad(phi.detach(), mining)
+        ctx.save_for_backward(grad)
+        return value
+
+    @staticmethod
+    @once_differentiable  # type: ignore[misc]
+    def backward(ctx: Any, grad_out: Tensor) -> tuple[Tensor, None]:
+        """The saved gradient times the incoming one (the mining has no gradient)."""
+        (grad,) = ctx.saved_tensors
+        return grad * grad_out, None
+
+
+@torch.no_grad()
+def _pair_value_and_grad(phi: Tensor, mining: _Mining) -> tuple[Tensor, Tensor]:
+    """Value and ``[T, S, D]`` gradient of the pair term over upper-triangle row blocks."""
+    m = mining
+    blocks = _row_blocks(phi.shape[1], m.block_rows)
+    cos = [phi[:, r0:r1] @ phi[:, r0:].transpose(1, 2) for r0, r1 in blocks]
+    low, high = _extremes(cos, m.affinity, blocks, phi.shape[1])
+    if phi.device.type == "cpu":
+        a, b = _pair_set_weights_cpu(low, high, m, phi.shape[0])
+    else:
+        pos, neg = _select(low, high, m.affinity, m.draw, m.pos_threshold, m.neg_threshold)
+        a, b = _pair_scales(m.weights.to(phi.dtype), pos, neg, phi.shape[0])
+    value, grad = phi.new_zeros(()), torch.zeros_like(phi)
+    for (r0, r1), c in zip(blocks, cos, strict=True):
+        coef = _coefficients(c, m.affinity[:, r0:r1, r0:], a[r0:r1, r0:], b[r0:r1, r0:])
+        rows = coef @ phi[:, r0:]  # [T, B, D]: sum_q k(p, q) phi_q
+        value += (phi[:, r0:r1] * rows).sum()
+        grad[:, r0:r1] += rows
+        grad[:, r0:] += coef.transpose(1, 2) @ phi[:, r0:r1]
+    return value, grad
 
 
 @torch.no_grad()
@@ -168,6 +223,29 @@ def _select(
     pos = (keep_pos | hard_pos | inconsistent) & upper
     neg = (keep_neg | hard_neg | inconsistent) & upper
     return pos, neg
+
+
+def _pair_set_weights_cpu(
+    low: Tensor, high: Tensor, m: _Mining, n_scales: int
+) -> tuple[Tensor, Tensor]:
+    """:func:`_select` then :func:`_pair_scales` in two fused numba passes, value for value
+    (every threshold rounded to the extremes' dtype as PyTorch compares them)."""
+    lo, hi = low.numpy(), high.numpy()
+    diagonal = torch.diagonal(m.affinity, dim1=1, dim2=2)  # [T, S]
+    all_pos, all_neg, half = (int(n) for n in kernels.pair_set_counts(lo, hi, _SPLIT))
+    n_pos = 2 * all_pos + int(diagonal.all(0).sum())  # over the full symmetric matrix
+    n_neg = 2 * all_neg + int((~diagonal).all(0).sum())
+    keep = [np.float32(half) / np.float32(max(n, 1)) for n in (n_pos, n_neg)]  # as torch
+    bounds = [_SPLIT, *keep, _SHIFT, m.pos_threshold, max(m.neg_threshold, _SPLIT + 1e-3)]
+    a, b, sizes = kernels.pair_set_weights(
+        lo,
+        hi,
+        m.draw.to(low.dtype).numpy(),
+        m.weights.to(low.dtype).numpy(),
+        np.array(bounds, dtype=lo.dtype),
+    )
+    scale_a, scale_b = (max(n_scales * int(n), 1) for n in sizes)
+    return torch.from_numpy(a) / scale_a, torch.from_numpy(b) / scale_b
 
 
 def _pair_scales(weights: Tensor, pos: Tensor, neg: Tensor, n_scales: int) -> tuple[Tensor, Tensor]:

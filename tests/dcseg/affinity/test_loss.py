@@ -1,3 +1,5 @@
+import math
+
 import torch
 from torch.autograd import gradcheck
 
@@ -151,3 +153,48 @@ def test_cpu_kernels_match_the_torch_expressions():
         assert torch.equal(low, want_low) and torch.equal(high, want_high)
         coef = kernels.pair_coefficients(cos.numpy(), affinity.numpy(), a.numpy(), b.numpy())
         assert torch.equal(torch.from_numpy(coef), coefficients_torch(cos, affinity, a, b))
+
+
+def _extremes_on_the_bounds(
+    t: int, s: int, dtype: torch.dtype, pos_thr: float, neg_thr: float, seed: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Affinity, low, high and draw with pairs whose selection hangs on one bound each."""
+    g = torch.Generator().manual_seed(seed)
+    _, _, affinity, _, _ = _inputs(s=s, t=t, seed=seed)
+    cos = torch.rand(t, s, s, generator=g, dtype=dtype) * 2 - 1
+    shifted = torch.where(affinity, cos - 4.0, cos)
+    low, high = shifted.amin(0).triu(1), shifted.amax(0).triu(1)
+    draw = torch.rand(s, s, generator=g, dtype=dtype)
+    bound = torch.tensor([pos_thr, neg_thr], dtype=dtype)
+    low[0, 1:4], high[0, 1:4], draw[0, 1:4] = bound[0] - 4.0, -3.5, math.inf  # on the bound
+    low[1, 2:5], high[1, 2:5], draw[1, 2:5] = -0.99, bound[1], math.inf  # on the bound
+    low[2, 3:9] = high[2, 3:9] = -3.01  # consistent positives, not hard: kept by the draw
+    low[3, 4:10] = high[3, 4:10] = -1.5  # consistent negatives, not hard
+    all_pos, all_neg = high < -2.0, low > -2.0
+    upper = torch.ones(s, s, dtype=torch.bool).triu(1)
+    diagonal = torch.diagonal(affinity, dim1=1, dim2=2)
+    half = int((~(all_pos | all_neg) & upper).sum())
+    for row, chosen, diag in ((2, all_pos, diagonal.all(0)), (3, all_neg, (~diagonal).all(0))):
+        n = 2 * int((chosen & upper).sum()) + int(diag.sum())
+        ratio = torch.tensor(half / max(n, 1), dtype=torch.float32).to(dtype)
+        near = torch.stack([ratio, ratio.nextafter(ratio + 1), ratio.nextafter(ratio - 1)])
+        draw[row, row + 1 : row + 7] = near.repeat(2)
+    return affinity, low, high, draw
+
+
+def test_cpu_pair_set_weights_equal_the_torch_selection():
+    from dcseg.affinity.loss import _Mining, _pair_scales, _pair_set_weights_cpu, _select
+
+    g = torch.Generator().manual_seed(7)
+    for dtype in (torch.float32, torch.float64):
+        for seed, (pos_thr, neg_thr) in enumerate([(0.75, 0.5), (0.7, 0.45), (0.1, -0.5)]):
+            t, s = 4, 37
+            affinity, low, high, draw = _extremes_on_the_bounds(t, s, dtype, pos_thr, neg_thr, seed)
+            weights = 1.0 + 9.0 * torch.rand(s, s, generator=g, dtype=dtype)
+            mining = _Mining(affinity, weights, draw, pos_thr, neg_thr, 8)
+            pos, neg = _select(low, high, affinity, draw, pos_thr, neg_thr)
+            assert pos.any() and neg.any()
+            want = _pair_scales(weights, pos, neg, t)
+            got = _pair_set_weights_cpu(low, high, mining, t)
+            for a, b in zip(got, want, strict=True):
+                assert a.dtype == dtype and torch.equal(a, b)

@@ -8,7 +8,9 @@ with a documented threshold of :class:`~dcseg.assign.config.AssignConfig`:
    Gaussian of the other among their ``neighbours`` nearest within the contact radius.
 2. **Unlabelled fragments** take the class their touching labelled neighbours hold most
    contacts with (weighted with their own pooled class evidence) and join the neighbour of that
-   class they touch most; without a labelled neighbour they are left out of the instance list.
+   class they touch most; in passes, so that a chain of fragments (a wall that clustering cut
+   into hundreds of pieces) is reached piece by piece. Fragments never connected to a labelled
+   cluster are left out of the instance list.
 3. **Merging** (union-find): touching clusters of the same class whose feature centres
    (cosine >= ``merge_min_cosine``) and class votes over views (cosine >=
    ``merge_min_vote_cosine``) agree are one object. Stuff classes (walls, floor ...) ignore
@@ -137,6 +139,11 @@ def adopt_unlabelled(
     0.6-0.9 of its own evidence, the teddy's class under trusted evidence: 3D labels on
     clean layouts 0-4 +0.05 / +0.30 / +0.10 / +0.04 / +0.12, other levels unchanged.
 
+    Passes repeat, the clusters adopted so far counted as labelled, until no unlabelled
+    cluster touches one: a single pass (until 2026-12-05) left a wall that HDBSCAN had cut
+    into ~300 pieces mostly unlabelled (held-out default layout 3, clustering seed 10: 11.9 %
+    of the ground-truth points without a label, 0.65 % with the passes).
+
     Args:
         classes: ``[K]`` class per cluster, -1 = unlabelled.
         pairs, counts: from :func:`cluster_contacts`.
@@ -144,30 +151,45 @@ def adopt_unlabelled(
         cfg: ``min_contacts`` and ``evidence_weight``.
 
     Returns:
-        ``classes [K]`` with adopted classes and ``parent [K]``: the labelled cluster each
-        adopted one joins (-1 for the others).
+        ``classes [K]`` with adopted classes and ``parent [K]``: the cluster each adopted one
+        joins, labelled or adopted in an earlier pass (-1 for the others).
     """
     out, parent = classes.copy(), np.full(len(classes), -1, dtype=np.int64)
     keep = counts >= cfg.min_contacts
     a, b, c = pairs[keep, 0], pairs[keep, 1], counts[keep]
-    # both directions: (unlabelled, labelled neighbour, contacts)
-    u = np.concatenate([a, b])
-    v = np.concatenate([b, a])
-    w = np.concatenate([c, c]).astype(np.float64)
-    edge = (classes[u] < 0) & (classes[v] >= 0)
-    u, v, w = u[edge], v[edge], w[edge]
+    # both directions: (cluster, neighbour, contacts)
+    edges = (np.concatenate([a, b]), np.concatenate([b, a]), np.concatenate([c, c]))
     total = pooled_evidence.sum(axis=1, keepdims=True)
     own = np.divide(pooled_evidence, total, out=np.zeros_like(pooled_evidence), where=total > 0)
+    while True:
+        known = out.copy()  # one pass decides on the classes of the previous one
+        if not _adopt_pass(known, edges, own, cfg.evidence_weight, out, parent):
+            return out, parent
+
+
+def _adopt_pass(
+    known: NDArray[np.int64],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]],
+    own: NDArray[np.float64],
+    evidence_weight: float,
+    out: NDArray[np.int64],
+    parent: NDArray[np.int64],
+) -> bool:
+    """Unlabelled clusters touching clusters with a class in ``known`` adopt one (``out`` and
+    ``parent`` written in place); whether any did."""
+    u, v, w = edges
+    edge = (known[u] < 0) & (known[v] >= 0)
+    u, v, w = u[edge], v[edge], w[edge].astype(np.float64)
     for k in np.unique(u):
         sel = u == k
-        near = np.bincount(classes[v[sel]], weights=w[sel], minlength=own.shape[1])
-        score = near / near.sum() + cfg.evidence_weight * own[k]
+        near = np.bincount(known[v[sel]], weights=w[sel], minlength=own.shape[1])
+        score = near / near.sum() + evidence_weight * own[k]
         cls = int(score.argmax())
         out[k] = cls
-        same = sel & (classes[v] == cls)
+        same = sel & (known[v] == cls)
         if same.any():
             parent[k] = int(v[same][w[same].argmax()])
-    return out, parent
+    return bool(edge.any())
 
 
 def merge_clusters(
@@ -272,7 +294,8 @@ class Fragments:
 
     Attributes:
         classes: ``[K]`` class per cluster, -1 = unlabelled and without a labelled neighbour.
-        parent: ``[K]`` the labelled cluster each adopted one joins, -1 for the others.
+        parent: ``[K]`` the cluster each adopted one joins (labelled or adopted before it), -1
+            for the others.
         pairs, counts: touching cluster pairs and their contacts (:func:`cluster_contacts`).
         semantic: ``[N]`` class per Gaussian, adopted classes filled in.
     """

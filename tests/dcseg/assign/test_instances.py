@@ -293,6 +293,24 @@ def test_an_unlabelled_cluster_weighs_its_own_evidence_against_its_neighbours(
     assert parents.tolist() == [-1, parent]
 
 
+def test_a_chain_of_unlabelled_clusters_is_adopted_pass_by_pass() -> None:
+    """Cluster 0 (floor) touches 1, 1 touches 2, 2 touches 3; cluster 4 touches nobody. 1
+    adopts floor in the first pass, 2 in the second (joining 1), 3 in the third; 4 stays
+    unlabelled. 3's own duck evidence (weight 1: duck 1.0 against floor 1.0 + 0.0) ties with
+    its floor neighbour, and a tie goes to the lower class id (floor)."""
+    classes = np.array([FLOOR, -1, -1, -1, -1])
+    pairs, counts = np.array([[0, 1], [1, 2], [2, 3]]), np.array([6, 6, 6])
+    pooled = np.zeros((5, N_CLASSES))
+    pooled[:3, FLOOR] = 1.0
+    pooled[3, DUCK] = 1.0
+    out, parents = adopt_unlabelled(classes, pairs, counts, pooled, AssignConfig())
+    assert out.tolist() == [FLOOR, FLOOR, FLOOR, FLOOR, -1]
+    assert parents.tolist()[:3] == [-1, 0, 1] and parents[4] == -1
+    few = np.array([6, 6, 4])  # 2-3 under min_contacts: 3 is never reached
+    out, _ = adopt_unlabelled(classes, pairs, few, pooled, AssignConfig())
+    assert out.tolist() == [FLOOR, FLOOR, FLOOR, -1, -1]
+
+
 def test_gaussians_whose_class_changed_leave_their_instance() -> None:
     objects = Instances(
         np.array([0, 0, 1, 1, -1]), np.array([3, 4]), np.array([0.9, 0.8]), np.array([0, 1])

@@ -118,11 +118,7 @@ def _pair_value_and_grad(phi: Tensor, mining: _Mining) -> tuple[Tensor, Tensor]:
     blocks = _row_blocks(phi.shape[1], m.block_rows)
     cos = [phi[:, r0:r1] @ phi[:, r0:].transpose(1, 2) for r0, r1 in blocks]
     low, high = _extremes(cos, m.affinity, blocks, phi.shape[1])
-    if phi.device.type == "cpu":
-        a, b = _pair_set_weights_cpu(low, high, m, phi.shape[0])
-    else:
-        pos, neg = _select(low, high, m.affinity, m.draw, m.pos_threshold, m.neg_threshold)
-        a, b = _pair_scales(m.weights.to(phi.dtype), pos, neg, phi.shape[0])
+    a, b = _pair_set_weights(low, high, m, phi.shape[0])
     value, grad = phi.new_zeros(()), torch.zeros_like(phi)
     for (r0, r1), c in zip(blocks, cos, strict=True):
         coef = _coefficients(c, m.affinity[:, r0:r1, r0:], a[r0:r1, r0:], b[r0:r1, r0:])
@@ -224,6 +220,16 @@ def _select(
     pos = (keep_pos | hard_pos | inconsistent) & upper
     neg = (keep_neg | hard_neg | inconsistent) & upper
     return pos, neg
+
+
+def _pair_set_weights(
+    low: Tensor, high: Tensor, m: _Mining, n_scales: int
+) -> tuple[Tensor, Tensor]:
+    """Pair weights on the positive and negative sets, each over ``T x`` its size."""
+    if low.device.type == "cpu":
+        return _pair_set_weights_cpu(low, high, m, n_scales)
+    pos, neg = _select(low, high, m.affinity, m.draw, m.pos_threshold, m.neg_threshold)
+    return _pair_scales(m.weights.to(low.dtype), pos, neg, n_scales)
 
 
 def _pair_set_weights_cpu(

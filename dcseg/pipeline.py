@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
+from dcseg.assign.adoption import adopt_fragments
 from dcseg.assign.completion import complete_labels
 from dcseg.assign.consistency import (
     follow_evidence,
@@ -26,7 +27,7 @@ from dcseg.assign.consistency import (
     spread,
     unsupported,
 )
-from dcseg.assign.instances import Instances, adopt_fragments, object_instances
+from dcseg.assign.instances import Instances, object_instances
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.blend import BlendWeights
 from dcseg.cluster.features import Clustering, as_numpy

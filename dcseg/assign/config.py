@@ -113,7 +113,7 @@ class AssignConfig:
         split_stuff_planes: split every stuff region into planes after merging: its
             Gaussians' local normals are grouped by direction (``surface_min_normal_cosine``)
             and each direction into connected pieces, so one cluster that wraps round a
-            corner gives two walls (:func:`dcseg.assign.instances.split_stuff_planes`).
+            corner gives two walls (:func:`dcseg.assign.planes.split_stuff_planes`).
         plane_min_share: a normal direction must hold at least this share of its region's
             Gaussians to become a plane of its own (smaller groups of normals, e.g. a
             skirting board's edge, join their neighbours' plane).

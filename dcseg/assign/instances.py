@@ -28,6 +28,9 @@ objects far smaller than the largest object of their class (``min_fragment_share
 size: a ball's loose patches next to two whole balls); their Gaussians, and
 labelled Gaussians outside every cluster, join the object or region of a near
 Gaussian of their class, or stay out of the instance list (they keep their class).
+
+Steps 1-2 live in :mod:`dcseg.assign.adoption`, the plane geometry of stuff surfaces in
+:mod:`dcseg.assign.planes`.
 """
 
 from __future__ import annotations
@@ -39,13 +42,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.cluster.hierarchy import DisjointSet
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from dcseg.assign.adoption import Fragments
 from dcseg.assign.config import AssignConfig
-from dcseg.assign.consistency import pooled_evidence
-from dcseg.geometry import local_axes
+from dcseg.assign.planes import cluster_planes, coplanar, split_stuff_planes
 
 
 @dataclass(frozen=True)
@@ -89,107 +90,10 @@ class Instances:
         return Instances(ids, self.classes.copy(), self.scores.copy(), self.of_cluster.copy())
 
 
-def cluster_contacts(
-    means: NDArray[np.float64], cluster_labels: NDArray[np.int64], radius: float, neighbours: int
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Touching cluster pairs: ``pairs [P, 2]`` (a < b) and ``counts [P]`` of contacts.
-
-    A contact is a Gaussian of one cluster with a Gaussian of the other among its
-    ``neighbours`` nearest within ``radius``; each Gaussian counts once per other cluster.
-    """
-    rows = np.flatnonzero(cluster_labels >= 0)
-    if len(rows) < 2:
-        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    k = min(neighbours + 1, len(rows))
-    _, idx = cKDTree(means[rows]).query(means[rows], k=k, distance_upper_bound=radius)
-    idx = np.asarray(idx, dtype=np.int64).reshape(len(rows), k)
-    own = cluster_labels[rows]
-    other = np.append(own, -1)[np.minimum(idx, len(rows))]
-    source = np.repeat(np.arange(len(rows)), k).reshape(len(rows), k)
-    hit = (other >= 0) & (other != own[:, None])
-    n = int(own.max()) + 1
-    per_gaussian = np.unique(source[hit] * n + other[hit])  # each Gaussian once per cluster
-    a, b = own[per_gaussian // n], per_gaussian % n
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    keys, counts = np.unique(lo * n + hi, return_counts=True)
-    return np.stack([keys // n, keys % n], axis=1), counts.astype(np.int64)
-
-
 def _cosine(x: NDArray[np.float64], a: NDArray[np.int64], b: NDArray[np.int64]) -> Any:
     norms = np.linalg.norm(x, axis=1)
     dots = np.einsum("ij,ij->i", x[a], x[b])
     return dots / np.maximum(norms[a] * norms[b], 1e-12)
-
-
-def adopt_unlabelled(
-    classes: NDArray[np.int64],
-    pairs: NDArray[np.int64],
-    counts: NDArray[np.int64],
-    pooled_evidence: NDArray[np.float64],
-    cfg: AssignConfig,
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Unlabelled clusters take a class from touching labelled ones (step 2).
-
-    A cluster touching labelled ones (``min_contacts``) takes the class that maximises its
-    neighbours' contact-weighted class share + ``evidence_weight`` x its own pooled evidence
-    share, the rule of label completion (:mod:`dcseg.assign.completion`), and joins the
-    neighbour of that class it touches most; a class no neighbour has can win only on its
-    own evidence, and then it joins none. Limiting the choice to the neighbours' classes
-    instead (until 2026-12-04) gave an unlabelled floor patch at a teddy's foot, floor by
-    0.6-0.9 of its own evidence, the teddy's class under trusted evidence: 3D labels on
-    clean layouts 0-4 +0.05 / +0.30 / +0.10 / +0.04 / +0.12, other levels unchanged.
-
-    Passes repeat, the clusters adopted so far counted as labelled, until no unlabelled
-    cluster touches one: a single pass (until 2026-12-05) left a wall that HDBSCAN had cut
-    into ~300 pieces mostly unlabelled (held-out default layout 3, clustering seed 10: 11.9 %
-    of the ground-truth points without a label, 0.65 % with the passes).
-
-    Args:
-        classes: ``[K]`` class per cluster, -1 = unlabelled.
-        pairs, counts: from :func:`cluster_contacts`.
-        pooled_evidence: ``[K, C]`` class evidence summed over each cluster's Gaussians.
-        cfg: ``min_contacts`` and ``evidence_weight``.
-
-    Returns:
-        ``classes [K]`` with adopted classes and ``parent [K]``: the cluster each adopted one
-        joins, labelled or adopted in an earlier pass (-1 for the others).
-    """
-    out, parent = classes.copy(), np.full(len(classes), -1, dtype=np.int64)
-    keep = counts >= cfg.min_contacts
-    a, b, c = pairs[keep, 0], pairs[keep, 1], counts[keep]
-    # both directions: (cluster, neighbour, contacts)
-    edges = (np.concatenate([a, b]), np.concatenate([b, a]), np.concatenate([c, c]))
-    total = pooled_evidence.sum(axis=1, keepdims=True)
-    own = np.divide(pooled_evidence, total, out=np.zeros_like(pooled_evidence), where=total > 0)
-    while True:
-        known = out.copy()  # one pass decides on the classes of the previous one
-        if not _adopt_pass(known, edges, own, cfg.evidence_weight, out, parent):
-            return out, parent
-
-
-def _adopt_pass(
-    known: NDArray[np.int64],
-    edges: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]],
-    own: NDArray[np.float64],
-    evidence_weight: float,
-    out: NDArray[np.int64],
-    parent: NDArray[np.int64],
-) -> bool:
-    """Unlabelled clusters touching clusters with a class in ``known`` adopt one (``out`` and
-    ``parent`` written in place); whether any did."""
-    u, v, w = edges
-    edge = (known[u] < 0) & (known[v] >= 0)
-    u, v, w = u[edge], v[edge], w[edge].astype(np.float64)
-    for k in np.unique(u):
-        sel = u == k
-        near = np.bincount(known[v[sel]], weights=w[sel], minlength=own.shape[1])
-        score = near / near.sum() + evidence_weight * own[k]
-        cls = int(score.argmax())
-        out[k] = cls
-        same = sel & (known[v] == cls)
-        if same.any():
-            parent[k] = int(v[same][w[same].argmax()])
-    return bool(edge.any())
 
 
 def merge_clusters(
@@ -206,8 +110,9 @@ def merge_clusters(
     """Union-find over clusters (step 3): ``[K]`` root cluster of each labelled cluster, -1 else.
 
     Adopted clusters join their ``parent``; touching same-class clusters merge when features
-    and votes agree, or, for stuff classes, when they are coplanar (:func:`coplanar`;
-    ``planes`` from :func:`cluster_planes`).
+    and votes agree, or, for stuff classes, when they are coplanar
+    (:func:`~dcseg.assign.planes.coplanar`; ``planes`` from
+    :func:`~dcseg.assign.planes.cluster_planes`).
     """
     k = len(classes)
     sets = DisjointSet(range(k))
@@ -224,43 +129,6 @@ def merge_clusters(
         sets.merge(int(x), int(y))
     roots = np.array([sets[i] for i in range(k)], dtype=np.int64)
     return np.where(classes >= 0, roots, -1)
-
-
-def cluster_planes(
-    means: NDArray[np.float64], cluster_labels: NDArray[np.int64], k: int
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``centroids [K, 3]`` and unit ``normals [K, 3]`` (direction of least variance) of every
-    cluster's Gaussian centres; zeros for empty clusters."""
-    member = cluster_labels >= 0
-    lab, pts = cluster_labels[member], means[member]
-    count = np.maximum(np.bincount(lab, minlength=k), 1).astype(np.float64)
-    sums = np.stack([np.bincount(lab, pts[:, i], k) for i in range(3)], axis=1)
-    centroids: NDArray[np.float64] = sums.astype(np.float64) / count[:, None]
-    d = pts - centroids[lab]
-    cov = np.zeros((k, 3, 3))
-    np.add.at(cov, lab, d[:, :, None] * d[:, None, :])
-    _, vectors = np.linalg.eigh(cov)
-    normals: NDArray[np.float64] = vectors[:, :, 0]
-    return centroids, normals
-
-
-def coplanar(
-    centroids: NDArray[np.float64],
-    normals: NDArray[np.float64],
-    a: NDArray[np.int64],
-    b: NDArray[np.int64],
-    cfg: AssignConfig,
-) -> NDArray[np.bool_]:
-    """Cluster pairs on one surface: their normals agree (|cos| >= ``surface_min_normal_cosine``)
-    and the step between their centroids lies in both planes (its |cosine| with either normal
-    is at most ``surface_max_tilt``)."""
-    same = np.abs(np.einsum("ij,ij->i", normals[a], normals[b])) >= cfg.surface_min_normal_cosine
-    step = centroids[b] - centroids[a]
-    step /= np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-12)
-    flat_a = np.abs(np.einsum("ij,ij->i", normals[a], step)) <= cfg.surface_max_tilt
-    flat_b = np.abs(np.einsum("ij,ij->i", normals[b], step)) <= cfg.surface_max_tilt
-    out: NDArray[np.bool_] = same & flat_a & flat_b
-    return out
 
 
 def _attach_loose(
@@ -288,56 +156,6 @@ def _attach_loose(
     return out
 
 
-@dataclass(frozen=True)
-class Fragments:
-    """Clusters after unlabelled ones adopted a class (step 2), and their contacts.
-
-    Attributes:
-        classes: ``[K]`` class per cluster, -1 = unlabelled and without a labelled neighbour.
-        parent: ``[K]`` the cluster each adopted one joins (labelled or adopted before it), -1
-            for the others.
-        pairs, counts: touching cluster pairs and their contacts (:func:`cluster_contacts`).
-        semantic: ``[N]`` class per Gaussian, adopted classes filled in.
-    """
-
-    classes: NDArray[np.int64]
-    parent: NDArray[np.int64]
-    pairs: NDArray[np.int64]
-    counts: NDArray[np.int64]
-    semantic: NDArray[np.int64]
-
-
-def adopt_fragments(
-    means: NDArray[np.floating[Any]],
-    cluster_labels: NDArray[np.int64],
-    semantic: NDArray[np.int64],
-    evidence: NDArray[np.float64],
-    radius: float,
-    cfg: AssignConfig,
-) -> Fragments:
-    """Steps 1-2: cluster contacts, and unlabelled clusters adopting their neighbour's class.
-
-    Args:
-        means: ``[N, 3]`` Gaussian centres.
-        cluster_labels: ``[N]`` cluster per Gaussian, -1 = noise.
-        semantic: ``[N]`` class per Gaussian (its cluster's), -1 = none.
-        evidence: ``[N, C]`` class evidence per Gaussian.
-        radius: contact radius (world units).
-        cfg: ``neighbours``, ``min_contacts``, ``evidence_weight``.
-    """
-    xyz = np.asarray(means, dtype=np.float64).reshape(-1, 3)
-    labels = np.asarray(cluster_labels, dtype=np.int64)
-    k = int(labels.max(initial=-1)) + 1
-    classes = _cluster_classes(labels, semantic, k)
-    pairs, counts = cluster_contacts(xyz, labels, radius, cfg.neighbours)
-    pooled = pooled_evidence(labels, evidence, k)
-    classes, parent = adopt_unlabelled(classes, pairs, counts, pooled, cfg)
-    out = np.asarray(semantic, dtype=np.int64).copy()
-    fill = (labels >= 0) & (out < 0)
-    out[fill] = classes[labels[fill]]
-    return Fragments(classes, parent, pairs, counts, out)
-
-
 def object_instances(
     means: NDArray[np.floating[Any]],
     cluster_labels: NDArray[np.int64],
@@ -356,7 +174,7 @@ def object_instances(
         means: ``[N, 3]`` Gaussian centres.
         cluster_labels: ``[N]`` cluster per Gaussian, -1 = noise.
         semantic: ``[N]`` final class per Gaussian (after completion), -1 = none.
-        fragments: from :func:`adopt_fragments`.
+        fragments: from :func:`~dcseg.assign.adoption.adopt_fragments`.
         centers: ``[K, D]`` unit feature centres of the clusters.
         votes: ``[K, C]`` the assignment's summed IoU votes.
         cluster_scores: ``[K]`` the assignment's scores.
@@ -456,127 +274,6 @@ def _drop_small(group: NDArray[np.int64], min_size: int) -> NDArray[np.int64]:
     return out
 
 
-PLANE_NEIGHBOURS = 16
-"""Neighbours whose spread gives a stuff Gaussian's local normal (:func:`split_stuff_planes`)."""
-
-PLANE_CANDIDATES = 256
-"""Normals tried as a region's dominant plane direction per round (evenly spaced picks)."""
-
-PLANE_VOTERS = 4096
-"""Normals (evenly spaced) whose agreement ranks the candidates of a round."""
-
-
-def plane_labels(
-    normals: NDArray[np.float64], min_cosine: float, min_points: int
-) -> NDArray[np.int64]:
-    """Group unit normals (up to sign) by direction: ``[M]`` group per normal, -1 = none.
-
-    Each round takes the candidate normal that most remaining normals agree with
-    (|cosine| >= ``min_cosine``; counted on :data:`PLANE_VOTERS` of them) and gives the
-    agreeing normals a group, while such a group holds at least
-    ``min_points`` normals; the rest stay -1.
-    """
-    out = np.full(len(normals), -1, dtype=np.int64)
-    for label in range(len(normals)):
-        free = np.flatnonzero(out < 0)
-        if len(free) < min_points:
-            break
-        picks = free[_spaced(len(free), PLANE_CANDIDATES)]
-        voters = free[_spaced(len(free), PLANE_VOTERS)]
-        votes = (np.abs(normals[picks] @ normals[voters].T) >= min_cosine).sum(axis=1)
-        best = normals[picks[int(votes.argmax())]]
-        members = free[np.abs(normals[free] @ best) >= min_cosine]
-        if len(members) < min_points:
-            break
-        out[members] = label
-    return out
-
-
-def _spaced(n: int, most: int) -> NDArray[np.intp]:
-    """At most ``most`` evenly spaced indices into ``n`` items."""
-    return np.linspace(0, n - 1, min(most, n)).astype(np.intp)
-
-
-def split_stuff_planes(
-    means: NDArray[np.float64],
-    group: NDArray[np.int64],
-    semantic: NDArray[np.int64],
-    stuff: NDArray[np.bool_],
-    radius: float,
-    cfg: AssignConfig,
-) -> NDArray[np.int64]:
-    """Stuff regions split into their planes: one cluster that wraps round a room's corner
-    holds two walls, which the cluster-level coplanar test cannot separate.
-
-    Per stuff region, the Gaussians' local normals (:data:`PLANE_NEIGHBOURS`) are grouped by
-    direction (:func:`plane_labels`, |cosine| >= ``surface_min_normal_cosine``; a direction
-    needs ``plane_min_share`` of the region); Gaussians of no direction (corners, noisy normals)
-    join the direction of their nearest grouped neighbour; each direction then splits into
-    connected pieces (centres within ``radius``), and pieces below ``plane_min_share`` of the
-    region join the piece nearest to them. A region with one direction stays whole unless it
-    falls apart into large pieces.
-    """
-    out = group.copy()
-    next_key = int(group.max(initial=-1)) + 1
-    for key in np.unique(group[group >= 0]):
-        rows = np.flatnonzero(group == key)
-        cls = semantic[rows[0]]
-        if not (0 <= cls < len(stuff) and stuff[cls]) or len(rows) <= PLANE_NEIGHBOURS:
-            continue
-        pieces = _plane_pieces(means[rows], radius, cfg)
-        for piece in range(1, int(pieces.max(initial=0)) + 1):
-            out[rows[pieces == piece]] = next_key
-            next_key += 1
-    return out
-
-
-def _plane_pieces(
-    points: NDArray[np.float64], radius: float, cfg: AssignConfig
-) -> NDArray[np.int64]:
-    """``[M]`` piece per point of one stuff region (0 = the first piece)."""
-    _, vectors = local_axes(points, PLANE_NEIGHBOURS)
-    min_points = max(int(np.ceil(cfg.plane_min_share * len(points))), 1)
-    direction = plane_labels(vectors[:, :, 0], cfg.surface_min_normal_cosine, min_points)
-    placed = np.flatnonzero(direction >= 0)
-    if len(placed) == 0:
-        return np.zeros(len(points), dtype=np.int64)
-    loose = np.flatnonzero(direction < 0)
-    if len(loose):
-        _, nearest = cKDTree(points[placed]).query(points[loose])
-        direction[loose] = direction[placed[nearest]]
-    pieces = np.zeros(len(points), dtype=np.int64)
-    offset = 0
-    for d in range(int(direction.max()) + 1):
-        rows = np.flatnonzero(direction == d)
-        pairs = cKDTree(points[rows]).query_pairs(radius, output_type="ndarray")
-        graph = coo_matrix(
-            (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(rows), len(rows))
-        )
-        n, labels = connected_components(graph, directed=False)
-        pieces[rows] = offset + labels
-        offset += n
-    return _absorb_small(points, pieces, min_points)
-
-
-def _absorb_small(
-    points: NDArray[np.float64], pieces: NDArray[np.int64], min_points: int
-) -> NDArray[np.int64]:
-    """Pieces with fewer than ``min_points`` points join the piece of their nearest point in a
-    large one (sparse walls fall into specks at the contact radius); numbered ``0..P-1``."""
-    sizes = np.bincount(pieces)
-    large = sizes[pieces] >= min_points
-    if not large.any():
-        return np.zeros(len(pieces), dtype=np.int64)
-    small = np.flatnonzero(~large)
-    if len(small):
-        kept = np.flatnonzero(large)
-        _, nearest = cKDTree(points[kept]).query(points[small])
-        pieces = pieces.copy()
-        pieces[small] = pieces[kept[nearest]]
-    out: NDArray[np.int64] = np.unique(pieces, return_inverse=True)[1].reshape(-1)
-    return out
-
-
 def drop_fragments(
     group: NDArray[np.int64],
     semantic: NDArray[np.int64],
@@ -608,18 +305,6 @@ def drop_fragments(
         small |= of_class & (sizes < share * sizes[of_class].max())
     out = group.copy()
     out[inside[small[inverse]]] = -1
-    return out
-
-
-def _cluster_classes(labels: NDArray[np.int64], semantic: NDArray[np.int64], k: int) -> Any:
-    """Each cluster's class: the class its labelled members carry most (-1 if none)."""
-    out = np.full(k, -1, dtype=np.int64)
-    member = (labels >= 0) & (semantic >= 0)
-    if member.any():
-        c = int(semantic.max()) + 1
-        table = np.bincount(labels[member] * c + semantic[member], minlength=k * c)
-        table = table.reshape(k, c)
-        out = np.where(table.sum(axis=1) > 0, table.argmax(axis=1), -1)
     return out
 
 

@@ -1,4 +1,7 @@
-"""Object instances from clusters: merge fragments, adopt unlabelled ones, split stuff surfaces."""
+"""Object instances from clusters: merge fragments, adopt unlabelled ones, split stuff surfaces.
+
+Each test builds objects end to end (adoption, merging, plane split, dissolving).
+"""
 
 from __future__ import annotations
 
@@ -8,35 +11,22 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from dcseg.assign.adoption import adopt_fragments, cluster_contacts
 from dcseg.assign.config import AssignConfig
-from dcseg.assign.instances import (
-    Instances,
-    adopt_fragments,
-    adopt_unlabelled,
-    cluster_contacts,
-    drop_fragments,
-    object_instances,
-    plane_labels,
+from dcseg.assign.instances import Instances, drop_fragments, object_instances
+from tests.dcseg.assign.surfaces import (
+    DUCK,
+    FLOOR,
+    MUG,
+    N_CLASSES,
+    RADIUS,
+    SPACING,
+    STUFF,
+    WALL,
+    corner,
+    patch,
+    unit,
 )
-
-SPACING = 0.02
-RADIUS = 3 * SPACING
-WALL, FLOOR, DUCK, MUG = 0, 1, 2, 3
-N_CLASSES = 4
-STUFF = (WALL, FLOOR)
-
-
-def patch(x0: float, x1: float, y0: float, y1: float, z: float = 0.0) -> NDArray[np.float64]:
-    """A flat grid of Gaussian centres at ``SPACING`` (a surface)."""
-    xs = np.arange(x0, x1, SPACING)
-    ys = np.arange(y0, y1, SPACING)
-    gx, gy = np.meshgrid(xs, ys, indexing="ij")
-    return np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], axis=1)
-
-
-def unit(*values: float) -> NDArray[np.float32]:
-    v = np.array(values, dtype=np.float32)
-    return v / np.linalg.norm(v)
 
 
 def build(
@@ -158,13 +148,6 @@ def test_small_instances_are_left_out() -> None:
     assert kept.n_instances == 1
 
 
-def test_contacts_count_each_gaussian_once_per_other_cluster() -> None:
-    means = np.array([[0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [5, 0, 0]], dtype=np.float64)
-    labels = np.array([0, 1, 1, 2])
-    pairs, counts = cluster_contacts(means, labels, 0.015, 3)
-    assert pairs.tolist() == [[0, 1]] and counts.tolist() == [2]  # Gaussian 0 and Gaussian 1
-
-
 def test_thresholds_are_validated() -> None:
     with pytest.raises(ValueError, match="merge_min_cosine"):
         AssignConfig(merge_min_cosine=2.0)
@@ -203,19 +186,10 @@ def test_a_raised_platform_is_not_the_floor() -> None:
     assert set(result.ids[-len(bridge) :]).isdisjoint(low_ids | high_ids)
 
 
-def _corner(noise: float = 0.0) -> NDArray[np.float64]:
-    """One wall along y = 0 and one along x = 0, meeting at the z axis, as one point set."""
-    flat = patch(0, 0.8, 0, 0.6)
-    wall_x = np.stack([flat[:, 0] + SPACING, np.zeros(len(flat)), flat[:, 1]], axis=1)
-    wall_y = np.stack([np.zeros(len(flat)), flat[:, 0] + SPACING, flat[:, 1]], axis=1)
-    points = np.concatenate([wall_x, wall_y])
-    return points + np.random.default_rng(0).normal(0.0, noise, points.shape)
-
-
 def test_one_cluster_round_a_corner_is_two_walls() -> None:
     """A single wall cluster that wraps round a corner: the coplanar test never sees two
     clusters, the plane split gives two regions, one per wall; off, it stays one."""
-    points = _corner()
+    points = corner()
     half = len(points) // 2
     split, _, _ = build([(points, 0)], [WALL], [unit(1, 0, 0)])
     assert split.n_instances == 2
@@ -234,16 +208,8 @@ def test_a_noisy_floor_stays_one_region_and_objects_are_never_split() -> None:
     floor[:, 2] += np.random.default_rng(1).normal(0.0, 0.004, len(floor))
     result, _, _ = build([(floor, 0)], [FLOOR], [unit(1, 0, 0)])
     assert result.n_instances == 1
-    duck, _, _ = build([(_corner(), 0)], [DUCK], [unit(1, 0, 0)])
+    duck, _, _ = build([(corner(), 0)], [DUCK], [unit(1, 0, 0)])
     assert duck.n_instances == 1
-
-
-def test_plane_labels_group_normals_up_to_sign() -> None:
-    normals = np.array([[0, 0, 1], [0, 0, -1], [0.1, 0, 0.995], [1, 0, 0], [-1, 0, 0], [0, 1, 0]])
-    labels = plane_labels(normals.astype(np.float64), 0.8, 2)
-    assert labels[0] == labels[1] == labels[2] >= 0
-    assert labels[3] == labels[4] >= 0 and labels[3] != labels[0]
-    assert labels[5] == -1  # a direction with fewer than 2 normals
 
 
 def test_a_loose_patch_far_smaller_than_the_objects_of_its_class_dissolves() -> None:
@@ -273,42 +239,6 @@ def test_drop_fragments_keeps_every_object_when_off_or_alone() -> None:
     assert drop_fragments(group, semantic, stuff, 0.0).tolist() == group.tolist()
     stuff[DUCK] = True
     assert drop_fragments(group, semantic, stuff, 0.1).tolist() == group.tolist()
-
-
-@pytest.mark.parametrize(("weight", "adopted", "parent"), [(1.0, DUCK, 0), (10.0, FLOOR, -1)])
-def test_an_unlabelled_cluster_weighs_its_own_evidence_against_its_neighbours(
-    weight: float, adopted: int, parent: int
-) -> None:
-    """Cluster 1 touches only cluster 0 (a duck, 6 contacts); its own pooled evidence is
-    floor 0.8 / duck 0.2. As completion does, it takes the class that maximises neighbour
-    share + weight x own share, a class no neighbour has included: with weight 1 the duck
-    (1 + 0.2 against 0.8) and it joins cluster 0; with weight 10 (trusted evidence) floor
-    (8 against 3), joining no one."""
-    classes = np.array([DUCK, -1])
-    pairs, counts = np.array([[0, 1]]), np.array([6])
-    pooled = np.array([[0.0, 0.0, 5.0, 0.0], [0.0, 4.0, 1.0, 0.0]])
-    cfg = replace(AssignConfig(), evidence_weight=weight)
-    out, parents = adopt_unlabelled(classes, pairs, counts, pooled, cfg)
-    assert out.tolist() == [DUCK, adopted]
-    assert parents.tolist() == [-1, parent]
-
-
-def test_a_chain_of_unlabelled_clusters_is_adopted_pass_by_pass() -> None:
-    """Cluster 0 (floor) touches 1, 1 touches 2, 2 touches 3; cluster 4 touches nobody. 1
-    adopts floor in the first pass, 2 in the second (joining 1), 3 in the third; 4 stays
-    unlabelled. 3's own duck evidence (weight 1: duck 1.0 against floor 1.0 + 0.0) ties with
-    its floor neighbour, and a tie goes to the lower class id (floor)."""
-    classes = np.array([FLOOR, -1, -1, -1, -1])
-    pairs, counts = np.array([[0, 1], [1, 2], [2, 3]]), np.array([6, 6, 6])
-    pooled = np.zeros((5, N_CLASSES))
-    pooled[:3, FLOOR] = 1.0
-    pooled[3, DUCK] = 1.0
-    out, parents = adopt_unlabelled(classes, pairs, counts, pooled, AssignConfig())
-    assert out.tolist() == [FLOOR, FLOOR, FLOOR, FLOOR, -1]
-    assert parents.tolist()[:3] == [-1, 0, 1] and parents[4] == -1
-    few = np.array([6, 6, 4])  # 2-3 under min_contacts: 3 is never reached
-    out, _ = adopt_unlabelled(classes, pairs, few, pooled, AssignConfig())
-    assert out.tolist() == [FLOOR, FLOOR, FLOOR, -1, -1]
 
 
 def test_gaussians_whose_class_changed_leave_their_instance() -> None:

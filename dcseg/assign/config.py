@@ -71,7 +71,7 @@ class AssignConfig:
             Gaussian its own evidence's class. Sizes 20 / 50 / 100: realistic layout 1 41.1 /
             41.1 / 40.5, heavy layout 1 67.2 / 67.2 / 67.5 (instance F1 97.4 / 94.6 / 95.9 and
             96.2 / 94.9 / 94.9); 20 cost heavy layouts 0 and 2 1.0 and 0.5. Both steps, off
-            -> on, 3D labels on layouts 0-2 (``benchmarks/README.md``): default +0.2 / -0.4
+            -> on, 3D labels on layouts 0-2 (``benchmarks/HISTORY.md``): default +0.2 / -0.4
             / +6.4, heavy +0.4 / +6.4 / -0.6, realistic +1.8 / +4.4 / -0.6, clean unchanged.
             A group is only as right as its pooled evidence: on default layout 1 a group of
             ball Gaussians whose look-alike evidence said bowl became a bowl.

@@ -16,22 +16,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
-from dcseg.assign.adoption import adopt_fragments
-from dcseg.assign.completion import complete_labels
-from dcseg.assign.consistency import (
-    follow_evidence,
-    inconsistent,
-    mask_agreement,
-    pooled_evidence,
-    rejected_groups,
-    spread,
-    unsupported,
-)
-from dcseg.assign.instances import Instances, object_instances
+from dcseg.assign.consistency import mask_agreement
+from dcseg.assign.instances import Instances
+from dcseg.assign.objects import build_objects, stuff_ids
+from dcseg.assign.refinement import drop_inconsistent, supported_votes, trusted_settings
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.blend import BlendWeights
 from dcseg.cluster.features import Clustering, as_numpy
-from dcseg.cluster.outliers import adaptive_radius, compact_labels
+from dcseg.cluster.outliers import adaptive_radius
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import CacheConfig, PipelineConfig
 from dcseg.evaluate.points import transfer_opaque, vote_projection
@@ -233,13 +225,12 @@ def segment_scene(
     ``cfg.assign.trust_agreement``, the trusted share ratio and evidence weight replace the
     usual ones below (:func:`~dcseg.assign.consistency.mask_agreement`). With
     ``cfg.assign.min_share_ratio > 0``, Gaussians whose own class-mask evidence
-    contradicts their cluster's class then leave it (:mod:`dcseg.assign.consistency`),
+    contradicts their cluster's class then leave it (:mod:`dcseg.assign.refinement`),
     clusters left empty are removed, and the cluster maps are rendered again; the votes stay
     those of the first maps. Then unlabelled clusters adopt a touching labelled neighbour's
-    class, unlabelled Gaussians on labelled surfaces are completed
-    (:mod:`dcseg.assign.completion`), and clusters become object instances
-    (:mod:`dcseg.assign.instances`; ``class_names`` names the vocabulary, so that
-    ``cfg.assign.stuff_classes`` can be found in it). With ``cfg.assign.maps_from ==
+    class, unlabelled Gaussians on labelled surfaces are completed, and clusters become
+    object instances (:mod:`dcseg.assign.objects`; ``class_names`` names the vocabulary, so
+    that ``cfg.assign.stuff_classes`` can be found in it). With ``cfg.assign.maps_from ==
     "gaussians"`` the label maps are rendered from the Gaussians' final classes (those of
     ``semantic_ids``), in the same pass over the views as the second cluster maps; with
     ``"clusters"`` they are the cluster maps through each cluster's class.
@@ -265,23 +256,25 @@ def segment_scene(
     agreement = float("nan")
     means = as_numpy(g.means, np.float64)
     if evidence is not None:
-        assignment = _supported(evidence, clustering, assignment, means, cfg, on_progress)
+        assignment, n_weak = supported_votes(evidence, clustering, assignment, means, cfg.assign)
+        if n_weak:
+            on_progress("assign", 1.0, f"{n_weak} votes unsupported by their clusters' evidence")
         agreement = mask_agreement(label_map(clustering.labels, assignment.labels), evidence)
-    cfg, trusted = _trusting(cfg, agreement)
+    a, trusted = trusted_settings(cfg.assign, agreement)
+    cfg = replace(cfg, assign=a) if trusted else cfg
     if agreement == agreement:
         trust = "own evidence trusted" if trusted else "clusters decide"
         on_progress("assign", 1.0, f"mask agreement {agreement:.3f}: {trust}")
-    a = cfg.assign
     refine = a.min_share_ratio > 0 and bool(labelled) and evidence is not None
     radius = adaptive_radius(means, a.contact_factor, seed=cfg.seed)
-    stuff = _stuff_ids(class_names, a.stuff_classes)
+    stuff = stuff_ids(class_names, a.stuff_classes)
     if refine and evidence is not None:
-        clustering, assignment = _drop_inconsistent(
-            evidence, clustering, assignment, (features, means, radius, stuff), cfg
+        clustering, assignment = drop_inconsistent(
+            evidence, clustering, assignment, (features, means, radius, stuff), a
         )
     semantic_ids = label_map(clustering.labels, assignment.labels)
-    instances, semantic_ids = _objects(
-        means, radius, evidence, clustering, assignment, semantic_ids, cfg, stuff
+    instances, semantic_ids = build_objects(
+        means, radius, evidence, clustering, assignment, semantic_ids, a, stuff
     )
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
     if a.maps_from == "gaussians":
@@ -297,101 +290,6 @@ def segment_scene(
         }
     return Segmentation(
         clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted
-    )
-
-
-def _supported(
-    evidence: NDArray[np.float64],
-    clustering: Clustering,
-    assignment: Assignment,
-    means: NDArray[np.float64],
-    cfg: PipelineConfig,
-    on_progress: Progress,
-) -> Assignment:
-    """``assignment`` with each vote that its cluster's own pooled evidence does not support
-    (:func:`~dcseg.assign.consistency.unsupported`, ``cfg.assign.min_cluster_support``)
-    replaced by the class that evidence supports most, for clusters that span at least
-    ``cfg.assign.support_min_extent`` (:func:`~dcseg.assign.consistency.spread` of their
-    ``means``); its score becomes that class's share of the cluster's summed IoU votes (often
-    0: the masks' vote never reached it)."""
-    a = assignment
-    pooled = pooled_evidence(clustering.labels, evidence, len(a.labels))
-    weak = unsupported(pooled, a.labels, cfg.assign.min_cluster_support)
-    for k in np.flatnonzero(weak):
-        weak[k] = spread(means[clustering.labels == k]) >= cfg.assign.support_min_extent
-    if not weak.any():
-        return a
-    labels = a.labels.copy()
-    labels[weak] = pooled[weak].argmax(axis=1)
-    on_progress("assign", 1.0, f"{int(weak.sum())} votes unsupported by their clusters' evidence")
-    scores = a.scores.copy()
-    total = a.votes[weak].sum(axis=1)
-    won = a.votes[weak, labels[weak]]
-    scores[weak] = np.divide(won, total, out=np.zeros_like(won), where=total > 0)
-    return Assignment(labels, scores, a.votes.copy(), a.n_views.copy())
-
-
-def _trusting(cfg: PipelineConfig, agreement: float) -> tuple[PipelineConfig, bool]:
-    """``cfg`` with the trusted-evidence settings when the masks agree enough
-    (``AssignConfig.trust_agreement``), and whether they did. Trusted, no group of Gaussians
-    is regrouped: each follows its own evidence in completion, and every Gaussian follows it
-    after completion (``follow_evidence_ratio``)."""
-    a = cfg.assign
-    if a.trust_agreement is None or not agreement >= a.trust_agreement:
-        return cfg, False
-    trusted = replace(
-        a, min_share_ratio=a.trusted_share_ratio, evidence_weight=a.trusted_evidence_weight,
-        regroup_min_gaussians=0, follow_evidence_ratio=a.trusted_follow_ratio,
-    )  # fmt: skip
-    return replace(cfg, assign=trusted), True
-
-
-def _objects(
-    means: NDArray[np.float64],
-    radius: float,
-    evidence: NDArray[np.float64] | None,
-    clustering: Clustering,
-    assignment: Assignment,
-    semantic_ids: NDArray[np.int64],
-    cfg: PipelineConfig,
-    stuff: Sequence[int],
-) -> tuple[Instances, NDArray[np.int64]]:
-    """Adopt unlabelled clusters, complete labels, build object instances, and (with
-    ``cfg.assign.follow_evidence_ratio``) let Gaussians follow their own evidence.
-
-    ``means`` are the Gaussians' centres and ``radius`` the contact radius
-    (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.assign.contact_factor``); ``stuff``
-    the vocabulary's stuff classes.
-    """
-    a = cfg.assign
-    labels = clustering.labels
-    if (not a.objects and not a.complete) or radius <= 0 or evidence is None:
-        return _per_cluster(labels, assignment), semantic_ids
-    fragments = adopt_fragments(means, labels, semantic_ids, evidence, radius, a)
-    ids = fragments.semantic if a.objects else semantic_ids
-    if a.complete:
-        ids = complete_labels(
-            means, ids, evidence, radius=radius, neighbours=a.neighbours,
-            rounds=a.completion_rounds, evidence_weight=a.evidence_weight,
-        )  # fmt: skip
-    if not a.objects:
-        instances = _per_cluster(labels, assignment)
-    else:
-        instances = object_instances(
-            means, labels, ids, fragments, clustering.centers, assignment.votes,
-            assignment.scores, stuff, radius, a,
-        )  # fmt: skip
-    if a.follow_evidence_ratio > 0:  # after the objects: a few moved Gaussians leave theirs
-        ids = follow_evidence(ids, evidence, a.follow_evidence_ratio)
-        instances = instances.of_classes(ids)
-    return instances, ids
-
-
-def _per_cluster(labels: NDArray[np.int64], assignment: Assignment) -> Instances:
-    """One instance per cluster (``cfg.assign.objects`` off: the paper's output)."""
-    k = len(assignment.labels)
-    return Instances(
-        labels.copy(), assignment.labels.copy(), assignment.scores.copy(), np.arange(k)
     )
 
 
@@ -442,87 +340,6 @@ def _final_maps(
         classes[view.name] = cluster_map(blend, semantic_ids, label_masks)
         on_progress("refine", (i + 1) / len(views), f"view {view.name}")
     return (clusters if cluster_labels is not None else maps), classes
-
-
-Geometry = tuple[Any, NDArray[np.float64], float, Sequence[int]]
-"""A scene's clustering features (``[N, D]`` array or tensor), Gaussian centres, contact
-radius and the ids of its stuff classes (``AssignConfig.stuff_classes``)."""
-
-
-def _stuff_ids(class_names: Sequence[str], stuff_classes: Sequence[str]) -> list[int]:
-    """Indices of the vocabulary's stuff classes (names absent from it are ignored)."""
-    return [i for i, name in enumerate(class_names) if name in stuff_classes]
-
-
-def _drop_inconsistent(
-    evidence: NDArray[np.float64],
-    clustering: Clustering,
-    assignment: Assignment,
-    geometry: Geometry,
-    cfg: PipelineConfig,
-) -> tuple[Clustering, Assignment]:
-    """Gaussians contradicted by their own class evidence become noise; empty clusters go.
-
-    ``agree`` (evidence for the Gaussian's cluster class) and ``total`` (for any class) are
-    read off ``evidence`` (summed with the first cluster maps): the sums that
-    :func:`dcseg.segment.class_agreement` makes in a pass of its own. Touching groups of at
-    least ``cfg.assign.regroup_min_gaussians`` of the Gaussians that left one cluster become
-    clusters of their own (:func:`_regrouped`).
-    """
-    classes = label_map(clustering.labels, assignment.labels)
-    own = evidence[np.arange(len(classes)), np.maximum(classes, 0)]
-    agree = np.where(classes >= 0, own, 0.0)
-    total = evidence.sum(axis=1)
-    drop = inconsistent(clustering.labels, classes, agree, total, cfg.assign.min_share_ratio)
-    origin = np.where(drop, clustering.labels, -1)
-    labels = np.where(drop, -1, clustering.labels)
-    kept = Clustering(labels, clustering.centers, clustering.scores)
-    if cfg.assign.regroup_min_gaussians > 0 and geometry[2] > 0 and drop.any():
-        kept, assignment = _regrouped(kept, assignment, origin, evidence, geometry, cfg)
-    used = np.bincount(kept.labels[kept.labels >= 0], minlength=kept.n_clusters) > 0
-    compact, centers = compact_labels(kept.labels, kept.centers)
-    a = assignment
-    kept_assignment = Assignment(a.labels[used], a.scores[used], a.votes[used], a.n_views[used])
-    return Clustering(compact, centers, clustering.scores.copy()), kept_assignment
-
-
-def _regrouped(
-    clustering: Clustering,
-    assignment: Assignment,
-    origin: NDArray[np.int64],
-    evidence: NDArray[np.float64],
-    geometry: Geometry,
-    cfg: PipelineConfig,
-) -> tuple[Clustering, Assignment]:
-    """``clustering`` and ``assignment`` with each touching group of Gaussians that left one
-    cluster (``origin``; :func:`~dcseg.assign.consistency.rejected_groups`) appended as a
-    cluster: its centre is its Gaussians' mean feature (unit norm), its class the one its
-    pooled evidence supports most, its score that class's share of the pooled evidence; it
-    has no IoU votes (``votes`` row 0, ``n_views`` 0). Groups of a stuff class stay noise
-    (completion gives them their neighbours' class): at heavy noise they were pieces of
-    tables whose confused evidence said floor, and became 50-Gaussian "floor" regions."""
-    features, means, radius, stuff = geometry
-    groups = rejected_groups(means, origin, evidence, radius, cfg.assign.regroup_min_gaussians)
-    groups = groups.only(~np.isin(groups.classes, stuff))
-    g = len(groups.classes)
-    if g == 0:
-        return clustering, assignment
-    member = groups.ids >= 0
-    feats = as_numpy(features, np.float64)[member]
-    centers = np.zeros((g, feats.shape[1]))
-    np.add.at(centers, groups.ids[member], feats)
-    centers /= np.maximum(np.linalg.norm(centers, axis=1, keepdims=True), 1e-12)
-    k = clustering.n_clusters
-    labels = np.where(member, k + groups.ids, clustering.labels)
-    all_centers = np.concatenate([clustering.centers, centers.astype(np.float32)])
-    a = assignment
-    grown = Assignment(
-        np.concatenate([a.labels, groups.classes]),
-        np.concatenate([a.scores, groups.shares]),
-        np.concatenate([a.votes, np.zeros((g, a.votes.shape[1]))]),
-        np.concatenate([a.n_views, np.zeros(g, dtype=np.int64)]),
-    )
-    return Clustering(labels, all_centers, clustering.scores), grown
 
 
 def evaluate_segmentation(

@@ -9,7 +9,7 @@ Each variant is a JSON object of :class:`dcseg.synth.SynthConfig` fields on top 
 ``--size`` and the ``default`` noise level, plus optionally ``"reconstruct"`` (reconstruction
 overrides, as a job's ``options.reconstruct``) and ``"scene"`` (the name of another variant
 whose scenes to reuse: same synth fields, another reconstruction). Per variant and scene seed
-the scene is generated, reconstructed with the fast preset (``reconstruct_job``, what
+the scene is generated, reconstructed with the fast preset (``dcseg.jobs.reconstruct_job``, what
 ``dcseg reconstruct`` runs) and scored: held-out PSNR against the capture's colour (blurred
 when the variant blurs, as a real capture's held-out frames are) and against the sharp colour,
 depth MAE against the capture's noisy depth (what a real capture can measure) and against the
@@ -35,9 +35,9 @@ from numpy.typing import NDArray
 from benchmarks.bench_surface import measure
 from dcseg.io.ply import read_gaussians_ply
 from dcseg.io.poses import POSES_FILE, read_poses
+from dcseg.jobs import reconstruct_job
 from dcseg.options import JobOptions, build_config
 from dcseg.reconstruct.evaluate import evaluate
-from dcseg.reconstruct.job import reconstruct_job
 from dcseg.reconstruct.poses import pose_change
 from dcseg.reconstruct.views import make_view
 from dcseg.synth import SynthConfig, SynthScene, generate_scene, write_scene
@@ -154,12 +154,9 @@ def run_one(scene: Path, run: Path, cfg: SynthConfig, overrides: dict[str, Any])
     report_path = run / "reconstruction.json"
     if not report_path.is_file():
         job = JobOptions.model_validate({"reconstruct": overrides})
-        pipeline, options = build_config("fast", job)
+        config = build_config("fast", job)
         start = time.perf_counter()
-        reconstruct_job(
-            scene, options, pipeline.reconstruct, run, budget=pipeline.budget,
-            device="cpu", rules=pipeline.rules,
-        )  # fmt: skip
+        reconstruct_job(scene, config, run, device="cpu")
         print(f"reconstructed {scene} in {time.perf_counter() - start:.0f} s", flush=True)
     report = json.loads(report_path.read_text(encoding="utf-8"))
     row: dict[str, Any] = measure(run, scene)

@@ -25,7 +25,7 @@ from typing import Any
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from dcseg.config import PipelineConfig, preset  # noqa: E402
+from dcseg.config import JobConfig, PipelineConfig, preset  # noqa: E402
 from dcseg.io.ground_truth import read_ground_truth  # noqa: E402
 from dcseg.io.run_output import load_run  # noqa: E402
 from dcseg.jobs import RunInputs, run_job  # noqa: E402
@@ -43,7 +43,7 @@ def ensure_run(work: Path, noise: str, seed: int, args: argparse.Namespace) -> P
     run = work / noise / f"run{seed}"
     if not (run / "run.json").is_file():
         start = time.perf_counter()
-        run_job(RunInputs.from_bundle(scene), preset("fast").seeded(seed), run)
+        run_job(RunInputs.from_bundle(scene), JobConfig(preset("fast").seeded(seed)), run)
         print(f"{noise} run{seed}: trained in {time.perf_counter() - start:.0f} s", flush=True)
     return run
 

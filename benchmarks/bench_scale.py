@@ -60,8 +60,8 @@ def child(args: argparse.Namespace) -> int:
     for name, value in (("max_side", args.max_side), ("max_frames", args.keyframes)):
         if value is not None:
             options["budget"][name] = int(value) if value.isdigit() else value
-    cfg, _ = build_config(args.preset, parse_options(options))
-    run_job(RunInputs.from_bundle(Path(args.scene)), cfg, Path(args.run), device=args.device)
+    config = build_config(args.preset, parse_options(options))
+    run_job(RunInputs.from_bundle(Path(args.scene)), config, Path(args.run), device=args.device)
     return 0
 
 

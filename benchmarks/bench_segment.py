@@ -46,7 +46,7 @@ from numpy.typing import NDArray  # noqa: E402
 from plyfile import PlyData  # noqa: E402
 
 from benchmarks.bench_handheld import ensure_scene  # noqa: E402
-from dcseg.config import PipelineConfig, preset  # noqa: E402
+from dcseg.config import JobConfig, PipelineConfig, preset  # noqa: E402
 from dcseg.evaluate import EvaluateConfig, evaluate_scenes, transfer_opaque, vote_projection  # noqa: E402
 from dcseg.evaluate.instances import instance_metrics  # noqa: E402
 from dcseg.io.ground_truth import read_ground_truth  # noqa: E402
@@ -89,7 +89,7 @@ def ensure_run(work: Path, noise: str, layout: int, args: argparse.Namespace) ->
     run = root / "run"
     if not (run / "run.json").is_file():
         start = time.perf_counter()
-        run_job(RunInputs.from_bundle(scene), train_config(args), run)
+        run_job(RunInputs.from_bundle(scene), JobConfig(train_config(args)), run)
         print(f"{noise} layout{layout}: trained in {time.perf_counter() - start:.0f} s", flush=True)
     return run
 

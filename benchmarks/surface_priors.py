@@ -20,17 +20,14 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.bench_surface import measure
+from dcseg.jobs import reconstruct_job
 from dcseg.options import JobOptions, build_config
-from dcseg.reconstruct.job import reconstruct_job
 
 
 def run_variant(scene: Path, out: Path, overrides: dict[str, Any]) -> dict[str, Any]:
-    pipeline, options = build_config("fast", JobOptions.model_validate({"reconstruct": overrides}))
+    config = build_config("fast", JobOptions.model_validate({"reconstruct": overrides}))
     start = time.perf_counter()
-    report = reconstruct_job(
-        scene, options, pipeline.reconstruct, out, budget=pipeline.budget, device="cpu",
-        rules=pipeline.rules,
-    )  # fmt: skip
+    report = reconstruct_job(scene, config, out, device="cpu")
     row: dict[str, Any] = measure(out, scene)
     row.update(
         overrides=overrides,

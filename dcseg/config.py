@@ -214,6 +214,22 @@ class PipelineConfig:
         )
 
 
+@dataclass(frozen=True)
+class JobConfig:
+    """The whole typed config of a job, as every stage receives it (:mod:`dcseg.stages`).
+
+    Built from a preset and job options by the one builder, :func:`dcseg.options.build_config`
+    (the CLI, the API and the worker all call it).
+
+    Attributes:
+        pipeline: every method parameter (:class:`PipelineConfig`).
+        capture: how the capture is read (:class:`CaptureOptions`).
+    """
+
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
+    capture: CaptureOptions = field(default_factory=CaptureOptions)
+
+
 def _build(stage: type[Any], value: Any, name: str) -> Any:
     if not isinstance(value, dict):
         raise ValueError(f"pipeline config {name!r} must be an object, got {type(value).__name__}")

@@ -31,11 +31,16 @@ from pydantic import (
     create_model,
 )
 
-from dcseg.affinity.config import PRESETS as AFFINITY_PRESETS
 from dcseg.affinity.config import AffinityConfig
-from dcseg.config import DEFAULT_SCALE, CaptureOptions, FrameBudget, PipelineConfig, preset
+from dcseg.config import (
+    DEFAULT_SCALE,
+    CaptureOptions,
+    FrameBudget,
+    JobConfig,
+    PipelineConfig,
+    preset,
+)
 from dcseg.errors import InputError, Problem
-from dcseg.reconstruct.config import PRESETS as RECONSTRUCT_PRESETS
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.sizes import SCALED
 
@@ -291,38 +296,50 @@ class JobOptions(_Strict):
         return data
 
 
-def build_config(preset_name: str, options: JobOptions) -> tuple[PipelineConfig, CaptureOptions]:
-    """The pipeline and capture configs of a job; InputError names every bad field.
+def build_config(preset_name: str | PipelineConfig, options: JobOptions) -> JobConfig:
+    """The typed config of a job; InputError names every bad field.
 
     The preset gives every value; ``options`` override single fields; ``segment.seed`` seeds
-    every stage. A field given here is kept at any scene size: it joins ``rules.fixed``, so no
-    size rule (:mod:`dcseg.sizes`) moves it. Cross-field rules of the stage configs
-    (``knn_sample <= knn_k``, ...) are checked here too, so the API refuses what the worker
-    would.
+    every stage. A stored run's config may stand for the preset (re-segmenting a run: only
+    the options given change it). A field given here is kept at any scene size: it joins
+    ``rules.fixed``, so no size rule (:mod:`dcseg.sizes`) moves it. Cross-field rules of the
+    stage configs (``knn_sample <= knn_k``, ...) are checked here too, so the API refuses what
+    the worker would.
     """
-    if preset_name not in PRESET_NAMES:
-        known = ", ".join(PRESET_NAMES)
-        raise InputError([Problem("preset", f"unknown preset {preset_name!r} (known: {known})")])
-    base = preset(preset_name)
-    seg = options.segment
-    reconstruct = _replace(
-        RECONSTRUCT_PRESETS[preset_name], options.reconstruct, "options.reconstruct"
-    )
-    affinity = _replace(AFFINITY_PRESETS[preset_name], options.affinity, "options.affinity")
+    base = _base(preset_name)
+    stored = isinstance(preset_name, PipelineConfig)
+    seg = options.segment.model_dump(exclude_unset=stored)
+    reconstruct = _replace(base.reconstruct, options.reconstruct, "options.reconstruct")
+    affinity = _replace(base.affinity, options.affinity, "options.affinity")
+    assign = {"mode": seg.get("matcher"), "maps_from": seg.get("label_maps")}
     try:
         cfg = dataclasses.replace(
             base,
             reconstruct=reconstruct,
             affinity=affinity,
-            scale=seg.scale,
-            assign=dataclasses.replace(base.assign, mode=seg.matcher, maps_from=seg.label_maps),
+            scale=seg.get("scale", base.scale),
+            assign=dataclasses.replace(
+                base.assign, **{k: v for k, v in assign.items() if v is not None}
+            ),
             budget=_budget(base.budget, options.budget),
-            rules=dataclasses.replace(base.rules, fixed=_explicit(options)),
-        ).seeded(seg.seed)
+            rules=dataclasses.replace(
+                base.rules, fixed=tuple(dict.fromkeys((*base.rules.fixed, *_explicit(options))))
+            ),
+        )
+        cfg = cfg.seeded(seg["seed"]) if "seed" in seg else cfg
         capture = CaptureOptions(**options.capture.model_dump())
     except ValueError as error:
         raise InputError([Problem("options", str(error))]) from None
-    return cfg, capture
+    return JobConfig(cfg, capture)
+
+
+def _base(preset_name: str | PipelineConfig) -> PipelineConfig:
+    if isinstance(preset_name, PipelineConfig):
+        return preset_name
+    if preset_name not in PRESET_NAMES:
+        known = ", ".join(PRESET_NAMES)
+        raise InputError([Problem("preset", f"unknown preset {preset_name!r} (known: {known})")])
+    return preset(preset_name)
 
 
 def _explicit(options: JobOptions) -> tuple[str, ...]:
@@ -359,8 +376,8 @@ def parse_options(data: Mapping[str, Any] | None) -> JobOptions:
         raise InputError(_problems(error)) from None
 
 
-def from_stored(config: Mapping[str, Any]) -> tuple[PipelineConfig, CaptureOptions]:
-    """The configs of a stored job config ``{"preset": ..., "options": {...}}``."""
+def from_stored(config: Mapping[str, Any]) -> JobConfig:
+    """The config of a stored job config ``{"preset": ..., "options": {...}}``."""
     options = parse_options(config.get("options"))
     return build_config(str(config.get("preset", "fast")), options)
 

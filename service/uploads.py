@@ -137,8 +137,9 @@ def extract_and_validate(archive: Path, dest: Path, settings: Settings) -> dict[
     Returns the validation summary plus which optional inputs were found.
     """
     from dcseg.errors import InputError
+    from dcseg.inputs import RunInputs
     from dcseg.io.archive import safe_extract
-    from dcseg.io.validate import InputPaths, validate_inputs
+    from dcseg.io.validate import validate_inputs
 
     hide = [(str(dest.resolve()), ""), (str(dest), ""), (str(archive), "upload")]
     try:
@@ -154,7 +155,7 @@ def extract_and_validate(archive: Path, dest: Path, settings: Settings) -> dict[
         raise invalid_upload(error.problems, hide) from None
     hide = [(str(root.resolve()), ""), (str(root), ""), *hide]
     layout = input_layout(root)
-    report = validate_inputs(InputPaths(**layout), max_pixels=settings.max_validation_pixels)
+    report = validate_inputs(RunInputs(**layout), max_pixels=settings.max_validation_pixels)
     if report.problems:
         raise invalid_upload(report.problems, hide)
     found = {

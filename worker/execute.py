@@ -29,6 +29,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal, Protocol
 
+from dcseg.progress import Progress
 from service.blobstore import Storage, make_storage
 from service.settings import Settings
 from service.store import Lease, Store
@@ -152,8 +153,9 @@ class StageContext:
     input_root: Path
     config: dict[str, Any]
     settings: Settings
-    progress: Callable[[float, str], None]
-    """``progress(fraction_of_stage, message)``; raises to stop the stage (cancel, timeout)."""
+    progress: Progress
+    """``progress(stage, fraction_of_stage, message)`` (the stage's own name); raises to stop
+    the stage (cancel, timeout)."""
     log: Callable[[str], None]
     output_root: Path | None = None
     """The job's output folder; finished stages' files are under ``output_root/<stage>/``."""
@@ -277,8 +279,8 @@ class _Runner:
         self.heartbeat.update(self.store.report_progress(job_id, worker, stage, overall, message))
         self.check()
 
-    def _progress(self, name: str, index: int, fraction: float, message: str) -> None:
-        self.report(name, index, fraction, message, False)
+    def _progress(self, index: int, stage: str, fraction: float, message: str) -> None:
+        self.report(self.stages[index].name, index, fraction, message, False)
 
     def _log(self, name: str, message: str) -> None:
         self.store.log(self.job_id, message, stage=name)
@@ -307,7 +309,7 @@ class _Runner:
                     input_root=input_root,
                     config=config,
                     settings=self.settings,
-                    progress=functools.partial(self._progress, stage.name, index),
+                    progress=functools.partial(self._progress, index),
                     log=functools.partial(self._log, stage.name),
                     output_root=workspace.output,
                 )

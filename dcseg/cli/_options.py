@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from dcseg.config import CaptureOptions, PipelineConfig
+from dcseg.config import CaptureOptions, JobConfig, PipelineConfig
 from dcseg.errors import InputError
 from dcseg.options import build_config, parse_options
 
@@ -112,7 +112,7 @@ def capture_fields(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def build(preset: str, options: dict[str, Any]) -> tuple[PipelineConfig, CaptureOptions]:
+def build(preset: str | PipelineConfig, options: dict[str, Any]) -> JobConfig:
     """The configs of ``options`` through the one builder the API and the worker use
     (:func:`dcseg.options.build_config`); exits naming the flag of a refused value."""
     try:
@@ -120,6 +120,12 @@ def build(preset: str, options: dict[str, Any]) -> tuple[PipelineConfig, Capture
     except InputError as error:
         lines = [f"{_flag(p.path)}: {p.reason}" for p in error.problems]
         raise SystemExit("dcseg: " + "; ".join(lines)) from None
+
+
+def rebuild(stored: PipelineConfig, options: dict[str, Any]) -> JobConfig:
+    """A stored run's config with ``options`` (e.g. ``{"segment": {"scale": 0.5}}``), through
+    the same builder and with the same error report as :func:`build`."""
+    return build(stored, options)
 
 
 def _flag(path: str) -> str:
@@ -132,4 +138,4 @@ def _flag(path: str) -> str:
 
 def capture_options(args: argparse.Namespace) -> CaptureOptions:
     """:class:`CaptureOptions` from the flags added by :func:`add_capture_options`."""
-    return build("fast", {"capture": capture_fields(args)})[1]
+    return build("fast", {"capture": capture_fields(args)}).capture

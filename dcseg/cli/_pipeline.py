@@ -9,11 +9,12 @@ from collections.abc import Callable
 from typing import Any
 
 from dcseg.cli._options import budget_fields, build, capture_fields
-from dcseg.config import DEFAULT_SCALE, CaptureOptions, PipelineConfig
+from dcseg.config import DEFAULT_SCALE, JobConfig
+from dcseg.progress import Progress
 
 log = logging.getLogger("dcseg")
 
-Job = Callable[[Callable[[str, float, str], None]], dict[str, Any]]
+Job = Callable[[Progress], dict[str, Any]]
 
 
 def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
@@ -83,7 +84,7 @@ def add_output_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def job_config(args: argparse.Namespace) -> tuple[PipelineConfig, CaptureOptions]:
+def job_config(args: argparse.Namespace) -> JobConfig:
     """The configs of ``--preset --scale --matcher --label-maps --seed``, the capture and
     budget flags."""
     segment = {

@@ -51,8 +51,8 @@ def run(args: argparse.Namespace) -> int:
     write_scene(generate_scene(synth), scene_dir)
     inputs = RunInputs.from_bundle(scene_dir)
     with StageBars(enabled=not args.quiet) as bars:
-        cfg, _ = build(args.preset, {"segment": {"seed": args.seed}})
-        record = run_job(inputs, cfg, run_dir, bars, device=args.device)
+        config = build(args.preset, {"segment": {"seed": args.seed}})
+        record = run_job(inputs, config, run_dir, bars, device=args.device)
     sys.stdout.write(json.dumps({"out": str(run_dir), **_summary(record)}, indent=1) + "\n")
     return 0
 

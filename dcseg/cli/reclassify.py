@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from dcseg.cli._pipeline import add_output_options, run_reporting
+from dcseg.progress import Progress
 
 
 def register(subparsers: Any) -> None:
@@ -25,15 +26,13 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dcseg.jobs import resegment_job
+    from dcseg.jobs import RunInputs, resegment_job
 
-    def job(progress: Any) -> dict[str, Any]:
-        return resegment_job(
-            args.run_dir,
-            args.out,
-            semantic_masks=args.semantic_masks,
-            vocabulary=args.vocabulary,
-            on_progress=progress,
-        )
+    inputs = RunInputs(
+        capture=args.run_dir, semantic_masks=args.semantic_masks, vocabulary=args.vocabulary
+    )
+
+    def job(progress: Progress) -> dict[str, Any]:
+        return resegment_job(args.run_dir, args.out, inputs, on_progress=progress)
 
     return run_reporting(job, args)

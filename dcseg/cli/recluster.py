@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from dcseg.cli._pipeline import add_output_options, run_reporting
+from dcseg.progress import Progress
 
 
 def register(subparsers: Any) -> None:
@@ -24,12 +25,11 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dcseg.jobs import resegment_job
+    from dcseg.cli._options import rebuild
+    from dcseg.jobs import resegment_job, stored_config
 
-    if not 0.0 <= args.scale <= 1.0:
-        raise SystemExit(f"dcseg: --scale must be in [0, 1], got {args.scale}")
-
-    def job(progress: Any) -> dict[str, Any]:
-        return resegment_job(args.run_dir, args.out, scale=args.scale, on_progress=progress)
+    def job(progress: Progress) -> dict[str, Any]:
+        config = rebuild(stored_config(args.run_dir), {"segment": {"scale": args.scale}})
+        return resegment_job(args.run_dir, args.out, config=config, on_progress=progress)
 
     return run_reporting(job, args)

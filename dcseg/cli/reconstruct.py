@@ -16,6 +16,7 @@ from dcseg.cli._options import (
     capture_fields,
 )
 from dcseg.cli._pipeline import add_device_option, add_reconstruct_flags, reconstruct_fields
+from dcseg.config import JobConfig
 
 log = logging.getLogger(__name__)
 
@@ -52,8 +53,8 @@ def register(subparsers: Any) -> None:
     parser.set_defaults(run=run)
 
 
-def _config(args: argparse.Namespace) -> tuple[Any, Any]:
-    """``(PipelineConfig, CaptureOptions)`` through the one config builder."""
+def _config(args: argparse.Namespace) -> JobConfig:
+    """The job config of the flags, through the one config builder."""
     overrides = {
         "iterations": args.iterations,
         "holdout": args.holdout,
@@ -74,44 +75,19 @@ def _config(args: argparse.Namespace) -> tuple[Any, Any]:
     return build(args.preset, options)
 
 
-def _progress_bar(total: int) -> tuple[Any, Any]:
-    from tqdm import tqdm
-
-    bar = tqdm(total=total, desc="reconstruct", unit="it", file=sys.stderr, dynamic_ncols=True)
-
-    def on_progress(iteration: int, total: int, loss: float) -> None:
-        if bar.total != total:  # the size rules set the steps once the capture is read
-            bar.total = total
-        bar.update(iteration - bar.n)
-        if iteration % 25 == 0 or iteration == total:
-            bar.set_postfix(loss=f"{loss:.4f}")
-
-    return bar, on_progress
-
-
 def run(args: argparse.Namespace) -> int:
+    from dcseg.cli._progress import StageBars
     from dcseg.errors import InputError
-    from dcseg.reconstruct.job import reconstruct_job
+    from dcseg.jobs import reconstruct_job
     from dcseg.sizes import summary as rules_summary
 
-    pipeline, options = _config(args)  # a bad option exits first, naming its flag
+    config = _config(args)  # a bad option exits first, naming its flag
     if args.out.is_dir() and any(args.out.iterdir()) and not args.overwrite:
         sys.stderr.write(f"dcseg reconstruct: {args.out} is not empty; pass --overwrite\n")
         return 2
-    cfg = pipeline.reconstruct
-    bar, on_progress = _progress_bar(cfg.iterations)
     try:
-        with bar:
-            report = reconstruct_job(
-                args.capture,
-                options,
-                cfg,
-                args.out,
-                budget=pipeline.budget,
-                device=args.device,
-                on_progress=on_progress,
-                rules=pipeline.rules,
-            )
+        with StageBars() as bars:
+            report = reconstruct_job(args.capture, config, args.out, bars, device=args.device)
     except InputError as error:
         for problem in error.problems:
             sys.stderr.write(f"dcseg reconstruct: {problem}\n")

@@ -34,7 +34,7 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from dcseg.jobs import RunInputs, run_job
 
-    cfg, options = job_config(args)
+    config = job_config(args)
     inputs = RunInputs(
         capture=args.capture,
         agnostic_masks=args.agnostic_masks,
@@ -42,10 +42,9 @@ def run(args: argparse.Namespace) -> int:
         vocabulary=args.vocabulary,
         ground_truth=args.gt,
         scene=args.scene,
-        capture_options=options,
     )
     return run_reporting(
-        lambda progress: run_job(inputs, cfg, args.out, progress, device=args.device), args
+        lambda progress: run_job(inputs, config, args.out, progress, device=args.device), args
     )
 
 

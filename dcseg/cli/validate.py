@@ -29,12 +29,13 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dcseg.io.validate import InputPaths, validate_inputs
+    from dcseg.inputs import RunInputs
+    from dcseg.io.validate import validate_inputs
 
     if args.semantic_masks is not None and args.vocabulary is None:
         sys.stderr.write("dcseg validate: --semantic-masks needs --vocabulary\n")
         return 2
-    paths = InputPaths(
+    paths = RunInputs(
         capture=args.capture,
         agnostic_masks=args.agnostic_masks,
         semantic_masks=args.semantic_masks,

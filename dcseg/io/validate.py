@@ -19,7 +19,7 @@ import numpy as np
 
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
-from dcseg.io.bundle import bundle_paths
+from dcseg.inputs import RunInputs
 from dcseg.io.captures import CaptureListing, list_capture
 from dcseg.io.captures.common import iter_frames, select
 from dcseg.io.ground_truth import read_ground_truth
@@ -42,29 +42,6 @@ FrameSizes = Mapping[str, tuple[int, int] | None]
 
 
 @dataclass(frozen=True)
-class InputPaths:
-    """Where the inputs of one job are; only ``capture`` is required."""
-
-    capture: Path
-    agnostic_masks: Path | None = None
-    semantic_masks: Path | None = None
-    vocabulary: Path | None = None
-    ground_truth: Path | None = None
-
-    @classmethod
-    def in_bundle(cls, root: Path) -> InputPaths:
-        """The inputs of a bundle folder (:data:`dcseg.io.bundle.BUNDLE_LAYOUT`)."""
-        found = bundle_paths(root)
-        return cls(
-            capture=root,
-            agnostic_masks=found["agnostic_masks"],
-            semantic_masks=found["semantic_masks"],
-            vocabulary=found["vocabulary"],
-            ground_truth=found["ground_truth"],
-        )
-
-
-@dataclass(frozen=True)
 class ValidationReport:
     """The outcome of :func:`validate_inputs`: a summary and every problem found."""
 
@@ -77,7 +54,7 @@ class ValidationReport:
 
 
 def validate_inputs(
-    paths: InputPaths, options: CaptureOptions | None = None, *, max_pixels: int | None = None
+    paths: RunInputs, options: CaptureOptions | None = None, *, max_pixels: int | None = None
 ) -> ValidationReport:
     """Read every input, cross-check masks against frames, and summarise.
 
@@ -127,7 +104,7 @@ def _attempt(problems: list[Problem], read: Callable[[], T]) -> T | None:
 
 
 def _decoded_files(
-    paths: InputPaths, listed: CaptureListing | None, options: CaptureOptions
+    paths: RunInputs, listed: CaptureListing | None, options: CaptureOptions
 ) -> Iterable[Path]:
     """Every file validation will decode as an image or array."""
     if listed is not None:
@@ -142,7 +119,7 @@ def _decoded_files(
 
 
 def _over_pixel_budget(
-    paths: InputPaths, listed: CaptureListing | None, options: CaptureOptions, max_pixels: int
+    paths: RunInputs, listed: CaptureListing | None, options: CaptureOptions, max_pixels: int
 ) -> Problem | None:
     """The problem of inputs whose headers add up to more than ``max_pixels``, if they do."""
     total = 0
@@ -236,7 +213,7 @@ def _check_capture(
 
 
 def _check_masks(
-    paths: InputPaths,
+    paths: RunInputs,
     frame_sizes: FrameSizes | None,
     problems: list[Problem],
     summary: dict[str, Any],
@@ -281,7 +258,7 @@ class _SemanticTally:
 
 
 def _check_semantic(
-    paths: InputPaths,
+    paths: RunInputs,
     problems: list[Problem],
     summary: dict[str, Any],
     frame_sizes: FrameSizes | None,

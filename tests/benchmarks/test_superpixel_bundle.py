@@ -30,6 +30,7 @@ def test_bundle_of_a_replica_capture_reads_as_a_run_input(tmp_path: Path) -> Non
     count = make_bundle(capture, tmp_path / "bundle", (k.fx, k.fy, k.cx, k.cy))
     assert count == rgbd_scene.n
     inputs = RunInputs.from_bundle(tmp_path / "bundle")
+    assert inputs.agnostic_masks and inputs.vocabulary and inputs.semantic_masks
     size = (k.width, k.height)
     agnostic = read_agnostic_masks(inputs.agnostic_masks, size=size)
     assert set(agnostic) == {f"frame{i:06d}" for i in range(rgbd_scene.n)}

@@ -11,11 +11,12 @@ from pathlib import Path
 import pytest
 
 from dcseg.cli import main
-from dcseg.config import FrameBudget, PipelineConfig, preset
+from dcseg.config import FrameBudget, JobConfig, PipelineConfig, preset
 from dcseg.io.images import read_image
 from dcseg.jobs import RunInputs, evaluate_job, run_job
 from dcseg.sizes import SCALED
-from worker.stages import ReconstructStage, TrainStage
+from dcseg.stages import RECONSTRUCT, TRAIN
+from worker.stages import LibraryStage
 
 pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")
 
@@ -42,7 +43,7 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def run_dir(scene: Path) -> Path:
     out = scene.parent / "run"
     budget = FrameBudget(max_side=80, max_frames=4)
-    run_job(RunInputs.from_bundle(scene), tiny_config(budget), out)
+    run_job(RunInputs.from_bundle(scene), JobConfig(tiny_config(budget)), out)
     return out
 
 
@@ -112,5 +113,5 @@ def test_cli_flags_override_the_preset_budget(
 def test_the_worker_stage_keys_include_the_budget() -> None:
     base = {"preset": "fast", "options": {}, "inputs": {"capture": "abc"}}
     changed = {**base, "options": {"budget": {"max_side": "native"}}}
-    for stage in (ReconstructStage(), TrainStage()):
+    for stage in (LibraryStage(RECONSTRUCT), LibraryStage(TRAIN)):
         assert stage.key(base) != stage.key(changed)

@@ -47,7 +47,7 @@ def test_every_overridable_field_is_bounded_or_a_choice(stage, bounds, choices):
 
 def test_a_switch_takes_only_a_json_boolean():
     options = parse_options({"reconstruct": {"planar_depth": True}})
-    built, _ = build_config("fast", options)
+    built = build_config("fast", options).pipeline
     assert built.reconstruct.planar_depth is True
     with pytest.raises(InputError, match="planar_depth"):
         parse_options({"reconstruct": {"planar_depth": "yes"}})
@@ -66,7 +66,7 @@ def test_presets_lie_inside_the_bounds(name):
         "reconstruct": {k: getattr(RECONSTRUCT_PRESETS[name], k) for k in RECONSTRUCT_BOUNDS},
         "affinity": {k: getattr(AFFINITY_PRESETS[name], k) for k in AFFINITY_BOUNDS},
     }
-    built, _ = build_config(name, parse_options(overrides))
+    built = build_config(name, parse_options(overrides)).pipeline
     assert dataclasses.replace(built, rules=preset(name).rules) == preset(name)
     assert set(built.rules.fixed) == {n for n in SCALED if n.split(".")[0] in overrides}
 
@@ -86,13 +86,14 @@ def test_size_rules_stay_inside_the_bounds(name):
 
 
 def test_defaults_are_the_preset():
-    cfg, capture = build_config("fast", JobOptions())
+    built = build_config("fast", JobOptions())
+    cfg, capture = built.pipeline, built.capture
     assert cfg == preset("fast") and capture == CaptureOptions()
 
 
 def test_segment_options_seed_every_stage_and_set_scale_and_matcher():
     options = parse_options({"segment": {"seed": 7, "scale": 0.5, "matcher": "matching"}})
-    cfg, _ = build_config("paper", options)
+    cfg = build_config("paper", options).pipeline
     assert cfg == dataclasses.replace(
         preset("paper").seeded(7),
         scale=0.5,
@@ -101,9 +102,9 @@ def test_segment_options_seed_every_stage_and_set_scale_and_matcher():
 
 
 def test_segment_options_choose_what_the_label_maps_show():
-    cfg, _ = build_config("fast", parse_options({"segment": {"label_maps": "clusters"}}))
+    cfg = build_config("fast", parse_options({"segment": {"label_maps": "clusters"}})).pipeline
     assert cfg.assign.maps_from == "clusters"
-    assert build_config("fast", JobOptions())[0].assign.maps_from == "gaussians"
+    assert build_config("fast", JobOptions()).pipeline.assign.maps_from == "gaussians"
     with pytest.raises(InputError, match="label_maps"):
         parse_options({"segment": {"label_maps": "pixels"}})
 
@@ -114,7 +115,7 @@ def test_cli_label_maps_flag_reaches_the_config(tmp_path: Path, monkeypatch):
     def record(args):
         from dcseg.cli._pipeline import job_config
 
-        seen.append(job_config(args)[0].assign.maps_from)
+        seen.append(job_config(args).pipeline.assign.maps_from)
         return 0
 
     monkeypatch.setattr("dcseg.cli.run.run", record)
@@ -170,8 +171,8 @@ def test_cli_refuses_out_of_range_values_naming_the_flag(tmp_path: Path, capsys)
 
 
 def test_min_confidence_is_bounded_and_reaches_the_capture_options():
-    assert build_config("fast", parse_options({}))[1].min_confidence == 0
-    _, capture = build_config("fast", parse_options({"capture": {"min_confidence": 2}}))
+    assert build_config("fast", parse_options({})).capture.min_confidence == 0
+    capture = build_config("fast", parse_options({"capture": {"min_confidence": 2}})).capture
     assert capture.min_confidence == 2
     for bad in (-1, 3, 1.5):
         with pytest.raises(InputError) as caught:
@@ -181,13 +182,13 @@ def test_min_confidence_is_bounded_and_reaches_the_capture_options():
 
 @pytest.mark.parametrize("name", ["fast", "paper"])
 def test_budget_defaults_are_the_preset_and_words_lift_the_caps(name):
-    cfg, _ = build_config(name, JobOptions())
+    cfg = build_config(name, JobOptions()).pipeline
     assert cfg.budget == BUDGET_PRESETS[name]
-    lifted, _ = build_config(name, parse_options({"budget": {"max_side": "native"}}))
+    lifted = build_config(name, parse_options({"budget": {"max_side": "native"}})).pipeline
     assert lifted.budget.max_side is None
     assert lifted.budget.max_frames == BUDGET_PRESETS[name].max_frames
     options = parse_options({"budget": {"max_frames": "all", "min_rotation_deg": 0}})
-    assert build_config(name, options)[0].budget.max_frames is None
+    assert build_config(name, options).pipeline.budget.max_frames is None
     assert options.stored()["budget"] == {"max_frames": "all", "min_rotation_deg": 0}
 
 

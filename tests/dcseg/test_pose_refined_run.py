@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dcseg.cli import main
-from dcseg.config import PipelineConfig, preset
+from dcseg.config import JobConfig, PipelineConfig, preset
 from dcseg.errors import InputError
 from dcseg.io.poses import read_poses
 from dcseg.jobs import RunInputs, run_job
@@ -51,7 +51,7 @@ def _capture_poses(scene: Path) -> dict[str, np.ndarray]:
 
 def test_the_later_stages_use_the_refined_poses(scene: Path) -> None:
     run = scene.parent / "refined"
-    run_job(RunInputs.from_bundle(scene), tiny_config(1e-3), run)
+    run_job(RunInputs.from_bundle(scene), JobConfig(tiny_config(1e-3)), run)
     record = json.loads((run / "run.json").read_text())
     refinement = record["reconstruction"]["pose_refinement"]
     assert "poses" not in refinement
@@ -64,7 +64,7 @@ def test_the_later_stages_use_the_refined_poses(scene: Path) -> None:
 
 def test_without_refinement_the_capture_poses_are_kept(scene: Path) -> None:
     run = scene.parent / "plain"
-    run_job(RunInputs.from_bundle(scene), tiny_config(0.0), run)
+    run_job(RunInputs.from_bundle(scene), JobConfig(tiny_config(0.0)), run)
     record = json.loads((run / "run.json").read_text())
     assert record["reconstruction"]["pose_refinement"] is None
     given = _capture_poses(scene)
@@ -84,7 +84,7 @@ def refined_scene(scene: Path) -> Path:
 def test_a_given_scene_brings_its_refined_poses(scene: Path, refined_scene: Path) -> None:
     run = scene.parent / "given"
     inputs = RunInputs.from_bundle(scene, scene=refined_scene / "scene.ply")
-    run_job(inputs, tiny_config(0.0), run)
+    run_job(inputs, JobConfig(tiny_config(0.0)), run)
     refined = read_poses(refined_scene / "poses.json")
     used = _state_poses(run)
     assert set(used) == set(refined)
@@ -113,6 +113,6 @@ def test_a_bad_poses_file_is_named_and_refused(
     (copy / "poses.json").write_text(content)
     inputs = RunInputs.from_bundle(scene, scene=copy / "scene.ply")
     with pytest.raises(InputError) as caught:
-        run_job(inputs, tiny_config(0.0), tmp_path / "run")
+        run_job(inputs, JobConfig(tiny_config(0.0)), tmp_path / "run")
     assert str(copy / "poses.json") in str(caught.value) and message in str(caught.value)
     assert not (tmp_path / "run").exists()

@@ -96,7 +96,7 @@ def test_paper_keeps_the_3dgs_schedule_and_grows_affinity_to_its_cap() -> None:
 def test_explicit_values_win() -> None:
     options = {"reconstruct": {"iterations": 1500, "max_gaussians": 100_000}}
     options["affinity"] = {"iterations": 800}
-    built, _ = build_config("fast", parse_options(options))
+    built = build_config("fast", parse_options(options)).pipeline
     assert set(built.rules.fixed) == {
         "reconstruct.iterations", "reconstruct.max_gaussians", "affinity.iterations"
     }  # fmt: skip
@@ -110,7 +110,7 @@ def test_explicit_values_win() -> None:
 
 
 def test_a_given_schedule_field_is_not_stretched() -> None:
-    built, _ = build_config("fast", parse_options({"reconstruct": {"densify_until": 1000}}))
+    built = build_config("fast", parse_options({"reconstruct": {"densify_until": 1000}})).pipeline
     cfg = resolve(dataclasses.replace(built, rules=_growing(built.rules.fixed).rules), TEN_TIMES)
     assert cfg.reconstruct.iterations == 7500 and cfg.reconstruct.densify_until == 1000
 

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from dcseg.cli import main
+from dcseg.inputs import RunInputs
 from dcseg.io.images import read_image
-from dcseg.io.validate import InputPaths, validate_inputs
+from dcseg.io.validate import validate_inputs
 
 pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")
 
@@ -33,8 +34,8 @@ def copy(scene: Path, tmp_path: Path) -> Path:
     return target
 
 
-def paths_of(root: Path) -> InputPaths:
-    return InputPaths(
+def paths_of(root: Path) -> RunInputs:
+    return RunInputs(
         capture=root,
         agnostic_masks=root / "masks" / "agnostic",
         semantic_masks=root / "masks" / "semantic",
@@ -174,7 +175,7 @@ def test_archive_entry_escaping_folder(tmp_path: Path, scene: Path) -> None:
     with tarfile.open(archive, "w") as tar:
         tar.add(scene, arcname="scene")
         tar.add(scene / "capture.json", arcname="../evil.json")
-    report = validate_inputs(InputPaths(capture=archive))
+    report = validate_inputs(RunInputs(capture=archive))
     assert not report.ok
     assert any("../evil.json" in str(p) for p in report.problems)
     assert not (tmp_path.parent / "evil.json").exists()
@@ -182,7 +183,7 @@ def test_archive_entry_escaping_folder(tmp_path: Path, scene: Path) -> None:
 
 def test_archive_capture_passes(tmp_path: Path, scene: Path) -> None:
     archive = shutil.make_archive(str(tmp_path / "capture"), "zip", scene.parent, scene.name)
-    report = validate_inputs(InputPaths(capture=Path(archive)))
+    report = validate_inputs(RunInputs(capture=Path(archive)))
     assert report.ok, report.problems
     assert report.summary["capture"]["frames"] == 4
 

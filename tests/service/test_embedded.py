@@ -95,7 +95,7 @@ def test_one_command_runs_a_job_end_to_end(serve, scene, tmp_path, capsys):
     names = sorted(Path(f).relative_to(tmp_path / "out").as_posix() for f in files)
     expected = {
         "validate/report.json",
-        "reconstruct/metrics.json",
+        "reconstruct/reconstruction.json",
         "reconstruct/scene.ply",
         "segment/scene_labelled.ply",
         "segment/instances.json",

@@ -19,10 +19,11 @@ import pytest
 from sqlalchemy import func, select
 
 from dcseg.cli import main
+from dcseg.inputs import RunInputs
 from dcseg.io import images
 from dcseg.io.captures import common
 from dcseg.io.limits import LimitProblem
-from dcseg.io.validate import InputPaths, validate_inputs
+from dcseg.io.validate import validate_inputs
 from service.main import create_app
 from service.models import Upload
 from tests.service.conftest import (
@@ -159,7 +160,7 @@ def test_validation_holds_one_frame_at_a_time(scene: Path, monkeypatch: pytest.M
         return frame
 
     monkeypatch.setattr(common, "_finish_frame", tracked)
-    report = validate_inputs(InputPaths.in_bundle(scene))
+    report = validate_inputs(RunInputs.from_bundle(scene, complete=False))
     assert report.ok, report.problems
     assert len(alive) == 4 and most <= 1
 
@@ -176,8 +177,8 @@ def test_pixel_budget_refuses_decodes_whose_header_is_not_read(
         cv2.imwrite(str(scene_copy / bmp), image)
         frame["rgb"] = bmp.as_posix()
     (scene_copy / "capture.json").write_text(json.dumps(manifest))
-    assert validate_inputs(InputPaths(capture=scene_copy)).ok
-    report = validate_inputs(InputPaths(capture=scene_copy), max_pixels=64 * 48 * 5)
+    assert validate_inputs(RunInputs(capture=scene_copy)).ok
+    report = validate_inputs(RunInputs(capture=scene_copy), max_pixels=64 * 48 * 5)
     reasons = [p.reason for p in report.problems if isinstance(p, LimitProblem)]
     assert reasons and all("not decoded" in r for r in reasons), report.problems
 

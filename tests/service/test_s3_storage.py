@@ -38,7 +38,7 @@ class CopyStage:
         data = (ctx.output_root / "one" / "out.txt").read_bytes()
         (out / "sub").mkdir()
         (out / "sub" / "rev.bin").write_bytes(data[::-1])
-        ctx.progress(1.0, "two: done")
+        ctx.progress("two", 1.0, "two: done")
         return StageOutcome("done", "two: done")
 
 

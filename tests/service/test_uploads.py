@@ -221,9 +221,11 @@ def test_digests_separate_capture_from_masks(client, scene_tar, scene_copy):
     assert set(a) == {"capture", "agnostic_masks", "semantic_masks", "vocabulary", "ground_truth"}
     assert a["capture"] == b["capture"] and a["agnostic_masks"] == b["agnostic_masks"]
     assert a["semantic_masks"] != b["semantic_masks"]
-    from worker.stages import ReconstructStage, ValidateStage
+    from dcseg.stages import RECONSTRUCT, VALIDATE
+    from worker.stages import LibraryStage
 
     config_a = {"preset": "fast", "options": {}, "inputs": a}
     config_b = {"preset": "fast", "options": {}, "inputs": b}
-    assert ReconstructStage().key(config_a) == ReconstructStage().key(config_b)  # reused
-    assert ValidateStage().key(config_a) != ValidateStage().key(config_b)  # re-checked
+    reconstruct, validate = LibraryStage(RECONSTRUCT), LibraryStage(VALIDATE)
+    assert reconstruct.key(config_a) == reconstruct.key(config_b)  # reused
+    assert validate.key(config_a) != validate.key(config_b)  # re-checked

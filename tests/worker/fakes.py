@@ -34,7 +34,7 @@ class FakeStage:
         for i in range(self.steps):
             if self.on_step is not None:
                 self.on_step(i)
-            ctx.progress((i + 1) / self.steps, f"{self.name}: step {i + 1}/{self.steps}")
+            ctx.progress(self.name, (i + 1) / self.steps, f"{self.name}: step {i + 1}/{self.steps}")
         if self.fail is not None:
             raise self.fail
         for name, data in self.files.items():

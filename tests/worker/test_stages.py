@@ -9,11 +9,12 @@ from typing import Any
 import pytest
 
 from dcseg.errors import InputError
+from dcseg.stages import VALIDATE
 from tests.worker.conftest import add_job
 from worker import celery_app
 from worker.contract import TASK_RUN_JOB, JobPaths
 from worker.execute import execute_job
-from worker.stages import ValidateStage, default_stages, job_configs
+from worker.stages import LibraryStage, default_stages, job_config
 
 
 def _use_scene(settings: Any, scene: Any) -> None:
@@ -36,7 +37,7 @@ def test_validate_and_reconstruct_on_a_tiny_capture(store, settings, scene):
     output = JobPaths(settings.storage_dir, job_id).output
     report = json.loads((output / "validate" / "report.json").read_text())
     assert report["capture"]["frames"] == 4 and report["semantic_masks"]["frames"] == 4
-    metrics = json.loads((output / "reconstruct" / "metrics.json").read_text())
+    metrics = json.loads((output / "reconstruct" / "reconstruction.json").read_text())
     assert metrics["gaussians"] > 0 and metrics["config"]["iterations"] == 2
     assert (output / "reconstruct" / "scene.ply").read_bytes().startswith(b"ply")
     assert (output / "train" / "state" / "affinity.npz").is_file()
@@ -48,23 +49,24 @@ def test_validate_stage_reports_damaged_inputs(store, settings, scene):
     data = settings.storage_dir / "uploads" / "u1" / "data"
     next((data / "depth").iterdir()).unlink()
     job_id = add_job(store)
-    assert execute_job(job_id, store, settings, stages=[ValidateStage()]) == "failed"
+    assert execute_job(job_id, store, settings, stages=[LibraryStage(VALIDATE)]) == "failed"
     error = store.get_job(job_id).error
     assert error["type"] == "invalid-input" and error["errors"]
 
 
-def test_job_configs_check_preset_and_fields():
-    cfg, capture = job_configs(
+def test_job_config_checks_preset_and_fields():
+    job = job_config(
         {"preset": "fast", "options": {"reconstruct": {"iterations": 7}, "capture": {"stride": 2}}}
     )
+    cfg, capture = job.pipeline, job.capture
     assert cfg.reconstruct.iterations == 7 and capture.stride == 2
     assert cfg.reconstruct.train_downscale == 2  # the rest is the fast preset
     with pytest.raises(InputError, match="unknown preset"):
-        job_configs({"preset": "nope"})
+        job_config({"preset": "nope"})
     with pytest.raises(InputError, match="options.reconstruct.bogus"):
-        job_configs({"preset": "fast", "options": {"reconstruct": {"bogus": 1}}})
+        job_config({"preset": "fast", "options": {"reconstruct": {"bogus": 1}}})
     with pytest.raises(InputError, match="options.reconstruct.iterations"):
-        job_configs({"preset": "fast", "options": {"reconstruct": {"iterations": -1}}})
+        job_config({"preset": "fast", "options": {"reconstruct": {"iterations": -1}}})
 
 
 def test_celery_settings_and_task_adapter(monkeypatch):

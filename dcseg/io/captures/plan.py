@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.config import FrameBudget
+from dcseg.io.folders import FrameSelection
 
 __all__ = ["CaptureMeta", "CapturePlan", "downscale_factor", "keyframes", "plan_capture"]
 
@@ -71,6 +72,11 @@ class CapturePlan:
     def names(self) -> tuple[str, ...]:
         """The names of the frames read."""
         return tuple(self.listed[i] for i in self.frames)
+
+    def selection(self) -> FrameSelection:
+        """The frames whose masks a run reads: the planned ones; masks of frames the capture
+        lacks are refused, those of frames the plan left out are skipped unread."""
+        return FrameSelection(frozenset(self.names), frozenset(self.listed))
 
     def describe(self) -> str:
         """One line for people, e.g. ``training at 600x340 (1200x680 / 2, ...); 60 of 60 ...``."""

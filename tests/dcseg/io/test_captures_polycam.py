@@ -11,9 +11,10 @@ import pytest
 
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
+from dcseg.inputs import RunInputs
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
-from dcseg.io.validate import InputPaths, validate_inputs
+from dcseg.io.validate import validate_inputs
 from tests.dcseg.io.arkit_scene import (
     CX,
     CY,
@@ -96,7 +97,7 @@ def test_min_confidence_masks_depth(polycam: Path) -> None:
 def _error(root: Path, options: CaptureOptions | None = None) -> str:
     with pytest.raises(InputError) as caught:
         read_capture(root, options or CaptureOptions())
-    report = validate_inputs(InputPaths(capture=root), options)
+    report = validate_inputs(RunInputs(capture=root), options)
     assert [str(p) for p in report.problems] == [str(p) for p in caught.value.problems]
     return str(caught.value)
 

@@ -14,12 +14,13 @@ import pytest
 from dcseg.cli import main
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
+from dcseg.inputs import RunInputs
 from dcseg.io import limits
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.io.limits import LimitProblem
 from dcseg.io.lzfse_buffers import compress
-from dcseg.io.validate import InputPaths, validate_inputs
+from dcseg.io.validate import validate_inputs
 from tests.dcseg.io.arkit_scene import (
     CX,
     CY,
@@ -112,7 +113,7 @@ def test_confidence_is_read_only_when_asked(r3d: Path) -> None:
 def _error(root: Path, options: CaptureOptions | None = None) -> str:
     with pytest.raises(InputError) as caught:
         read_capture(root, options or CaptureOptions())
-    report = validate_inputs(InputPaths(capture=root), options)
+    report = validate_inputs(RunInputs(capture=root), options)
     assert [str(p) for p in report.problems] == [str(p) for p in caught.value.problems]
     return str(caught.value)
 
@@ -194,7 +195,7 @@ def test_decompressed_size_limit_is_a_limit_problem(
     r3d: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(limits, "MAX_DECOMPRESSED_BYTES", 400)
-    report = validate_inputs(InputPaths(capture=r3d))
+    report = validate_inputs(RunInputs(capture=r3d))
     assert report.problems and all(isinstance(p, LimitProblem) for p in report.problems)
     assert report.problems[0].limit == "max_decompressed_bytes"  # type: ignore[attr-defined]
     assert str(report.problems[0]) == (
@@ -283,7 +284,7 @@ def test_exr_pixels_count_against_the_validation_budget(tmp_path: Path) -> None:
     root = write_exr_export(tmp_path / "EXR_RGBD")
     colour_px, depth_px = WIDTH * HEIGHT, DEPTH_WIDTH * DEPTH_HEIGHT
     budget = 3 * colour_px + 2 * depth_px + 50  # all colour fits, the third depth does not
-    report = validate_inputs(InputPaths(capture=root), max_pixels=budget)
+    report = validate_inputs(RunInputs(capture=root), max_pixels=budget)
     assert len(report.problems) == 1
     assert isinstance(report.problems[0], LimitProblem)
     assert report.problems[0].path.endswith("depth/2.exr")  # counted from the EXR header

@@ -92,7 +92,7 @@ def test_the_cap_keeps_evenly_spaced_keyframes_first_and_last_included():
 
 def test_native_and_all_lift_both_caps():
     options = parse_options({"budget": {"max_side": "native", "max_frames": "all"}})
-    budget = build_config("fast", options)[0].budget
+    budget = build_config("fast", options).pipeline.budget
     plan = plan_capture(meta(poses([(0.05, 0.0)] * 299)), budget)
     assert (plan.factor, len(plan.frames)) == (1, 300)
     capped = plan_capture(meta(poses([(0.05, 0.0)] * 299)), FAST)

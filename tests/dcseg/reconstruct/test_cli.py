@@ -86,11 +86,11 @@ def test_run_flag_puts_the_priors_in_the_job_config() -> None:
 
     run = ["run", "cap", "--out", "o", "--agnostic-masks", "a", "--semantic-masks", "s"]
     run += ["--vocabulary", "v"]
-    cfg, _ = job_config(build_parser().parse_args([*run, "--surface-priors"]))
+    cfg = job_config(build_parser().parse_args([*run, "--surface-priors"])).pipeline
     assert cfg.reconstruct.centre_weight == SURFACE_PRIORS["centre_weight"]
     assert cfg.reconstruct.init_thickness == SURFACE_PRIORS["init_thickness"]
     assert cfg.reconstruct.planar_depth is True
-    plain, _ = job_config(build_parser().parse_args(run))
+    plain = job_config(build_parser().parse_args(run)).pipeline
     assert plain.reconstruct.centre_weight == 0.0 and plain.reconstruct.init_thickness is None
     assert plain.reconstruct.planar_depth is False
 
@@ -138,5 +138,5 @@ def test_run_flag_puts_pose_refinement_in_the_job_config() -> None:
 
     run = ["run", "cap", "--out", "o", "--agnostic-masks", "a", "--semantic-masks", "s"]
     run += ["--vocabulary", "v", "--refine-poses"]
-    cfg, _ = job_config(build_parser().parse_args(run))
+    cfg = job_config(build_parser().parse_args(run)).pipeline
     assert cfg.reconstruct.pose_lr == REFINE_POSES["pose_lr"] > 0

@@ -1,6 +1,7 @@
-"""One composition of stage 1: the CLI verb and the worker's stage both call
-:func:`dcseg.reconstruct.job.reconstruct_job`, which calls :func:`reconstruct_scene` (as
-``dcseg run`` does), with the device and the config the one builder made."""
+"""One composition of stage 1: the CLI verb and the worker both run the reconstruct stage
+(:data:`dcseg.stages.RECONSTRUCT`, as ``dcseg run`` does), which calls
+:func:`dcseg.reconstruct.job.reconstruct_scene` with the device and the config the one builder
+made."""
 
 from __future__ import annotations
 
@@ -17,10 +18,11 @@ from dcseg.cli import main
 from dcseg.config import FrameBudget
 from dcseg.errors import InputError
 from dcseg.io.captures.plan import CaptureMeta, plan_capture
+from dcseg.stages import RECONSTRUCT
 from service.settings import Settings
 from tests.dcseg.reconstruct.scene import make_capture
 from worker.execute import StageContext
-from worker.stages import ReconstructStage
+from worker.stages import LibraryStage
 
 
 class Reached(Exception):
@@ -47,21 +49,21 @@ def calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[Any, ...]]:
     return seen
 
 
-def test_cli_reconstruct_goes_through_reconstruct_job(calls, tmp_path: Path) -> None:
+def test_cli_reconstruct_runs_the_reconstruct_stage(calls, tmp_path: Path) -> None:
     argv = ["reconstruct", str(tmp_path), "--out", str(tmp_path / "o"), "--iterations", "9"]
     with pytest.raises(Reached):
         main([*argv, "--device", "cpu"])
     assert calls == [("read", 640), (3, 9, "cpu")]
 
 
-def test_worker_stage_goes_through_reconstruct_job(calls, tmp_path: Path) -> None:
+def test_worker_runs_the_same_reconstruct_stage(calls, tmp_path: Path) -> None:
     options = {"reconstruct": {"iterations": 11}, "budget": {"max_side": "native"}}
     config = {"preset": "fast", "options": options}
     ctx = StageContext(
-        "job", tmp_path, config, Settings(device="cpu"), lambda f, m: None, lambda m: None
+        "job", tmp_path, config, Settings(device="cpu"), lambda s, f, m: None, lambda m: None
     )
     with pytest.raises(Reached):
-        ReconstructStage().run(ctx, tmp_path / "out")
+        LibraryStage(RECONSTRUCT).run(ctx, tmp_path / "out")
     assert calls == [("read", None), (3, 11, "cpu")]
 
 

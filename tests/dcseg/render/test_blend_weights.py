@@ -6,7 +6,7 @@ import torch
 
 from dcseg.render import render
 from dcseg.render.blend_weights import blend_weights
-from tests.dcseg.render.scenes import camera, scene, values
+from tests.scenes.gaussians import camera, scene, values
 
 
 def test_render_from_weights_matches_rasterizer() -> None:

@@ -10,7 +10,7 @@ from torch import Tensor
 from dcseg.gaussians import Gaussians
 from dcseg.render import Camera, RenderOutput, render
 from dcseg.render.numba_kernels import balanced_tiles
-from tests.dcseg.render import scenes
+from tests.scenes import gaussians as scenes
 
 NAMES = ("means", "quats", "log_scales", "opacity_logits", "values")
 

@@ -15,7 +15,7 @@ from dcseg.render import Camera
 from dcseg.render import numba_projection as npj
 from dcseg.render.cpu_projection import project_cpu
 from dcseg.render.projection import Splats, project
-from tests.dcseg.render import scenes
+from tests.scenes import gaussians as scenes
 
 
 def _posed_camera(dtype: torch.dtype) -> Camera:

@@ -11,29 +11,14 @@ from torch import Tensor
 from dcseg.gaussians import Gaussians
 from dcseg.render import render, render_planar
 from dcseg.render.planar import depth_planes, planes_reference
-from tests.dcseg.render.scenes import camera, parameters, scene, values
-
-
-def tilted_disc(angle: float, *, thickness: float = 1e-7) -> Gaussians:
-    """One opaque disc 2 m ahead, 0.4 m wide, its normal turned ``angle`` about the y axis."""
-    half = angle / 2
-    quat = torch.tensor([[math.cos(half), 0.0, math.sin(half), 0.0]], dtype=torch.float64)
-    scales = torch.tensor([[0.4, 0.4, thickness]], dtype=torch.float64).log()
-    return Gaussians(
-        torch.tensor([[0.1, 0.0, 2.0]], dtype=torch.float64),
-        quat,
-        scales,
-        torch.tensor([4.0], dtype=torch.float64),
-        torch.zeros(1, 1, 3, dtype=torch.float64),
-    )
-
-
-def ray_plane_depth(disc: Gaussians, u: Tensor, v: Tensor, k: Tensor) -> Tensor:
-    """Exact depth where each pixel's ray meets the disc's plane (camera = world)."""
-    angle = 2 * math.atan2(float(disc.quats[0, 2]), float(disc.quats[0, 0]))
-    normal = torch.tensor([math.sin(angle), 0.0, math.cos(angle)], dtype=torch.float64)
-    rays = torch.stack([(u - k[0, 2]) / k[0, 0], (v - k[1, 2]) / k[1, 1], torch.ones_like(u)], -1)
-    return (normal @ disc.means[0]) / (rays @ normal)
+from tests.scenes.gaussians import (
+    camera,
+    parameters,
+    ray_plane_depth,
+    scene,
+    tilted_disc,
+    values,
+)
 
 
 @pytest.mark.parametrize("backend", ["reference", "cpu"])

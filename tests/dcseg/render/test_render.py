@@ -15,19 +15,17 @@ from dcseg.render import BACKEND_ENV, Camera, render, select_backend
 from dcseg.render.gsplat_renderer import _arguments
 from dcseg.render.torch_renderer import composite_reference
 from dcseg.types import Frame, Intrinsics
-from tests.dcseg.render import scenes
+from tests.scenes import gaussians as scenes
 
 BACKENDS = ["reference", "cpu"]
 
 
 def _gaussians(means: list[list[float]], log_scale: float, logit: float) -> Gaussians:
     n = len(means)
-    return Gaussians(
+    return scenes.gaussians_at(
         torch.tensor(means, dtype=torch.float64).reshape(n, 3),
-        torch.tensor([[1.0, 0.0, 0.0, 0.0]] * n, dtype=torch.float64).reshape(n, 4),
         torch.full((n, 3), log_scale, dtype=torch.float64),
         torch.full((n,), logit, dtype=torch.float64),
-        torch.zeros(n, 1, 3, dtype=torch.float64),
     )
 
 

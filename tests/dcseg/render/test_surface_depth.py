@@ -10,20 +10,16 @@ import torch
 from dcseg.gaussians import Gaussians
 from dcseg.render import render, render_planar
 from dcseg.render.surface_depth import surface_depth
-from tests.dcseg.render.scenes import camera
-from tests.dcseg.render.test_planar import ray_plane_depth, tilted_disc
+from tests.scenes.gaussians import camera, gaussians_at, ray_plane_depth, tilted_disc
 
 
 def disc_before_wall() -> Gaussians:
     """An opaque round blob 1.5 m ahead in front of a flat opaque wall at 3 m."""
-    flat = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2, dtype=torch.float64)
     scales = torch.tensor([[0.15, 0.15, 0.15], [4.0, 4.0, 1e-6]], dtype=torch.float64).log()
-    return Gaussians(
+    return gaussians_at(
         torch.tensor([[0.0, 0.0, 1.5], [0.0, 0.0, 3.0]], dtype=torch.float64),
-        flat,
         scales,
         torch.tensor([6.0, 6.0], dtype=torch.float64),
-        torch.zeros(2, 1, 3, dtype=torch.float64),
     )
 
 
@@ -56,14 +52,11 @@ def test_planar_first_surface_is_the_ray_plane_depth(angle: float) -> None:
 
 def two_walls(gap: float) -> Gaussians:
     """Two half-transparent flat walls at 2 m and ``2 + gap`` m."""
-    flat = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2, dtype=torch.float64)
     scales = torch.tensor([[4.0, 4.0, 1e-6]] * 2, dtype=torch.float64).log()
-    return Gaussians(
+    return gaussians_at(
         torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 2.0 + gap]], dtype=torch.float64),
-        flat,
         scales,
         torch.tensor([0.0, 0.0], dtype=torch.float64),  # opacity 0.5 each
-        torch.zeros(2, 1, 3, dtype=torch.float64),
     )
 
 

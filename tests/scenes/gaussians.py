@@ -1,6 +1,9 @@
-"""Random Gaussian scenes and cameras for the renderer tests."""
+"""Gaussians and cameras built in code: random scenes for the renderer tests, and Gaussians at
+chosen places (a tilted disc, walls) whose renders have closed forms."""
 
 from __future__ import annotations
+
+import math
 
 import torch
 from torch import Tensor
@@ -46,3 +49,36 @@ def values(n: int, channels: int, *, seed: int = 1, dtype: torch.dtype = torch.f
 def parameters(gaussians: Gaussians) -> list[Tensor]:
     """The differentiable tensors of a scene, in a fixed order."""
     return [gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits]
+
+
+def gaussians_at(
+    means: Tensor, log_scales: Tensor, opacity_logits: Tensor, sh: Tensor | None = None
+) -> Gaussians:
+    """Gaussians at ``means`` with identity rotations; ``sh`` defaults to black at degree 0."""
+    n = means.shape[0]
+    quats = torch.zeros(n, 4, dtype=means.dtype)
+    quats[:, 0] = 1.0
+    colour = torch.zeros(n, 1, 3, dtype=means.dtype) if sh is None else sh
+    return Gaussians(means, quats, log_scales, opacity_logits, colour)
+
+
+def tilted_disc(angle: float, *, thickness: float = 1e-7) -> Gaussians:
+    """One opaque disc 2 m ahead, 0.4 m wide, its normal turned ``angle`` about the y axis."""
+    half = angle / 2
+    quat = torch.tensor([[math.cos(half), 0.0, math.sin(half), 0.0]], dtype=torch.float64)
+    scales = torch.tensor([[0.4, 0.4, thickness]], dtype=torch.float64).log()
+    return Gaussians(
+        torch.tensor([[0.1, 0.0, 2.0]], dtype=torch.float64),
+        quat,
+        scales,
+        torch.tensor([4.0], dtype=torch.float64),
+        torch.zeros(1, 1, 3, dtype=torch.float64),
+    )
+
+
+def ray_plane_depth(disc: Gaussians, u: Tensor, v: Tensor, k: Tensor) -> Tensor:
+    """Exact depth where each pixel's ray meets the disc's plane (camera = world)."""
+    angle = 2 * math.atan2(float(disc.quats[0, 2]), float(disc.quats[0, 0]))
+    normal = torch.tensor([math.sin(angle), 0.0, math.cos(angle)], dtype=torch.float64)
+    rays = torch.stack([(u - k[0, 2]) / k[0, 0], (v - k[1, 2]) / k[1, 1], torch.ones_like(u)], -1)
+    return (normal @ disc.means[0]) / (rays @ normal)

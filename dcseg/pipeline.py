@@ -32,7 +32,8 @@ from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
-from dcseg.segment import EvidenceSum, cluster_map, label_map
+from dcseg.segment import EvidenceSum, label_map
+from dcseg.segment.views import cluster_maps, final_maps
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
 
 T = TypeVar("T")
@@ -246,7 +247,7 @@ def segment_scene(
     # the pass that renders the cluster maps also sums the class evidence that the
     # consistency step and the objects use: each view's weights are read once for both
     total = EvidenceSum(len(g.means), n_classes) if needed else None
-    maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, total, semantic)
+    maps = cluster_maps(trained.views, clustering.labels, cfg.masks, on_progress, total, semantic)
     assignment = assign_labels(
         [maps[n] for n in labelled], [semantic[n].classes for n in labelled], k, n_classes,
         cfg.assign,
@@ -278,68 +279,21 @@ def segment_scene(
     )
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
     if a.maps_from == "gaussians":
-        maps, label_maps = _final_maps(
-            trained.views, clustering.labels if refine else None, maps, semantic_ids, cfg,
-            on_progress,
+        maps, label_maps = final_maps(
+            trained.views, clustering.labels if refine else None, maps, semantic_ids, cfg.masks,
+            a.filter_label_maps, on_progress,
         )  # fmt: skip
     else:
         if refine:
-            maps = _cluster_maps(trained.views, clustering.labels, cfg, on_progress, stage="refine")
+            maps = cluster_maps(
+                trained.views, clustering.labels, cfg.masks, on_progress, stage="refine"
+            )
         label_maps = {
             name: label_map(ids, assignment.labels).astype(np.int32) for name, ids in maps.items()
         }
     return Segmentation(
         clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted
     )
-
-
-def _cluster_maps(
-    views: Sequence[ViewState],
-    cluster_labels: NDArray[np.int64],
-    cfg: PipelineConfig,
-    on_progress: Progress,
-    evidence: EvidenceSum | None = None,
-    semantic: Mapping[str, SemanticMap] | None = None,
-    stage: str = "masks",
-) -> dict[str, NDArray[np.int32]]:
-    """Every view's cluster map; with ``evidence``, the views that have a class-aware map in
-    ``semantic`` also add their class evidence to it in the same pass."""
-    maps = {}
-    for i, view in enumerate(views):
-        blend = view.blend  # read once: a view in the cache folder is loaded per access
-        maps[view.name] = cluster_map(blend, cluster_labels, cfg.masks)
-        if evidence is not None and semantic and view.name in semantic:
-            evidence.add(blend, semantic[view.name].classes)
-        on_progress(stage, (i + 1) / len(views), f"view {view.name}")
-    return maps
-
-
-def _final_maps(
-    views: Sequence[ViewState],
-    cluster_labels: NDArray[np.int64] | None,
-    maps: dict[str, NDArray[np.int32]],
-    semantic_ids: NDArray[np.int64],
-    cfg: PipelineConfig,
-    on_progress: Progress,
-) -> tuple[dict[str, NDArray[np.int32]], dict[str, NDArray[np.int32]]]:
-    """Cluster maps (rendered again when ``cluster_labels`` is given, else ``maps``) and label
-    maps rendered from the Gaussians' final classes, in one pass over the views' weights.
-
-    A class is rendered as a cluster is (:func:`dcseg.segment.cluster_map`): per pixel the
-    class with the largest blending weight summed over its Gaussians, if at least
-    ``cfg.masks.min_weight``, then the 2D component filter.
-    """
-    clusters, classes = {}, {}
-    label_masks = cfg.masks
-    if not cfg.assign.filter_label_maps:
-        label_masks = replace(cfg.masks, min_area_fraction=0.0)
-    for i, view in enumerate(views):
-        blend = view.blend  # read once: a view in the cache folder is loaded per access
-        if cluster_labels is not None:
-            clusters[view.name] = cluster_map(blend, cluster_labels, cfg.masks)
-        classes[view.name] = cluster_map(blend, semantic_ids, label_masks)
-        on_progress("refine", (i + 1) / len(views), f"view {view.name}")
-    return (clusters if cluster_labels is not None else maps), classes
 
 
 def evaluate_segmentation(

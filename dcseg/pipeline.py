@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, TypeVar, overload
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,8 +26,9 @@ from dcseg.cluster.features import Clustering, as_numpy
 from dcseg.cluster.outliers import adaptive_radius
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import CacheConfig, PipelineConfig
-from dcseg.evaluate.points import transfer_opaque, vote_projection
+from dcseg.evaluate.points import transfer_opaque
 from dcseg.evaluate.stage import evaluate_scenes
+from dcseg.evaluate.views import vote_views
 from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
 from dcseg.render import Camera
@@ -35,8 +36,6 @@ from dcseg.render.blend_weights import blend_weights
 from dcseg.segment import EvidenceSum, label_map
 from dcseg.segment.views import cluster_maps, final_maps
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
-
-T = TypeVar("T")
 
 Progress = Callable[[str, float, str], None]
 """``on_progress(stage, fraction, message)``."""
@@ -187,31 +186,6 @@ def _loader(view: ViewState) -> BlendWeights | Callable[[], BlendWeights]:
     return view.blend if view.source is None else lambda: view.blend
 
 
-class _PerView(Sequence[T]):
-    """One value per view, read as the views are iterated (one view's value held at a time)."""
-
-    def __init__(self, views: Sequence[ViewState], read: Callable[[ViewState], T]) -> None:
-        self._views = views
-        self._read = read
-
-    def __len__(self) -> int:
-        return len(self._views)
-
-    @overload
-    def __getitem__(self, index: int) -> T: ...
-    @overload
-    def __getitem__(self, index: slice) -> Sequence[T]: ...
-    def __getitem__(self, index: int | slice) -> T | Sequence[T]:
-        if isinstance(index, slice):
-            return _PerView(self._views[index], self._read)
-        return self._read(self._views[index])
-
-
-def _depths(views: Sequence[ViewState]) -> Sequence[NDArray[np.float32]]:
-    """The views' depth, read one view at a time as they are iterated."""
-    return _PerView(views, lambda v: v.depth)
-
-
 def segment_scene(
     trained: TrainedScene,
     semantic: Mapping[str, SemanticMap],
@@ -316,9 +290,9 @@ def evaluate_segmentation(
     views = trained.views
     n = len(vocabulary)
     tol = cfg.evaluate.depth_tol
-    projection = _project(gt, views, [labels.label_maps[v.name] for v in views], n, tol)
+    projection = vote_views(gt, views, [labels.label_maps[v.name] for v in views], n, tol)
     seen = [v for v in views if v.name in semantic]
-    naive = _project(gt, seen, [semantic[v.name].classes for v in seen], n, tol)
+    naive = vote_views(gt, seen, [semantic[v.name].classes for v in seen], n, tol)
     g = trained.gaussians
     nearest = transfer_opaque(
         g.means.detach().cpu().numpy(),
@@ -337,21 +311,3 @@ def evaluate_segmentation(
     }
     summary = {name: {"miou": m["miou"], "macc": m["macc"]} for name, m in results.items()}
     return {**results, "summary": summary}
-
-
-def _project(
-    gt: GroundTruth,
-    views: Sequence[ViewState],
-    images: Sequence[NDArray[Any]],
-    n_classes: int,
-    depth_tol: float,
-) -> NDArray[np.int64]:
-    return vote_projection(
-        gt.points,
-        images,
-        _depths(views),
-        [v.K for v in views],
-        [v.c2w for v in views],
-        n_classes,
-        depth_tol,
-    )

@@ -7,16 +7,7 @@ import torch
 
 import dcseg.blend
 from dcseg.blend import BlendWeights
-
-
-def random_blend(height: int, width: int, n: int, seed: int = 0) -> BlendWeights:
-    g = torch.Generator().manual_seed(seed)
-    counts = torch.randint(0, 5, (height * width,), generator=g)
-    offsets = torch.cat([torch.zeros(1, dtype=torch.long), counts.cumsum(0)])
-    nnz = int(offsets[-1])
-    ids = torch.randint(0, n, (nnz,), generator=g)
-    weights = torch.rand(nnz, generator=g) * 0.3
-    return BlendWeights(height, width, offsets, ids, weights)
+from tests.scenes.blends import random_blend
 
 
 def dense(blend: BlendWeights, n: int) -> torch.Tensor:

@@ -3,11 +3,7 @@ import pytest
 
 from dcseg.affinity import mask_scales
 from dcseg.affinity.scales import erode
-from tests.dcseg.affinity.scene import encode
-
-
-def _camera(height: int, width: int, focal: float) -> np.ndarray:
-    return np.array([[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1.0]])
+from tests.scenes.affinity import camera_matrix, encode
 
 
 def test_flat_square_matches_analytic_scale():
@@ -16,7 +12,7 @@ def test_flat_square_matches_analytic_scale():
     dense = np.zeros((1, h, w), dtype=bool)
     dense[0, 50 : 50 + n, 50 : 50 + n] = True
     depth = np.full((h, w), z, dtype=np.float32)
-    (scale,) = mask_scales(encode(dense), depth, _camera(h, w, focal))
+    (scale,) = mask_scales(encode(dense), depth, camera_matrix(h, w, focal))
     side = n * z / focal
     analytic = np.sqrt(2.0) * 2.0 * side / np.sqrt(12.0)  # ||(2 std_x, 2 std_y, 0)||
     assert scale == pytest.approx(analytic, rel=1e-2)
@@ -27,7 +23,7 @@ def test_flat_square_matches_analytic_scale():
 def test_scale_grows_with_depth_and_ignores_invalid_depth():
     dense = np.zeros((1, 60, 80), dtype=bool)
     dense[0, 10:40, 20:60] = True
-    k = _camera(60, 80, 50.0)
+    k = camera_matrix(60, 80, 50.0)
     near = mask_scales(encode(dense), np.full((60, 80), 1.0, np.float32), k)[0]
     far = mask_scales(encode(dense), np.full((60, 80), 3.0, np.float32), k)[0]
     assert far == pytest.approx(3 * near, rel=1e-5)
@@ -43,7 +39,7 @@ def test_too_few_points_give_nan():
     dense[1, 10:20, 10:20] = True
     depth = np.ones((30, 30), np.float32)
     depth[10:20, 10:20] = 0.0  # no valid depth under mask 1
-    scales = mask_scales(encode(dense), depth, _camera(30, 30, 30.0))
+    scales = mask_scales(encode(dense), depth, camera_matrix(30, 30, 30.0))
     assert np.isnan(scales).all() and scales.dtype == np.float32
 
 
@@ -61,7 +57,7 @@ def test_erosion_is_a_majority_filter():
 def test_depth_at_another_resolution_is_resampled():
     dense = np.zeros((1, 40, 60), dtype=bool)
     dense[0, 5:35, 10:50] = True
-    k = _camera(40, 60, 40.0)
+    k = camera_matrix(40, 60, 40.0)
     same = mask_scales(encode(dense), np.full((40, 60), 2.0, np.float32), k)[0]
     k2 = k.copy()
     k2[:2] *= 2.0

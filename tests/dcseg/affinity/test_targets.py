@@ -13,7 +13,7 @@ from dcseg.affinity.targets import (
     sample_scale_indices,
     sample_scales,
 )
-from tests.dcseg.affinity.scene import camera_matrix, encode
+from tests.scenes.affinity import camera_matrix, encode
 
 
 def _packed(dense: np.ndarray, scales: np.ndarray) -> PackedMasks:

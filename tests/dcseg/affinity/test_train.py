@@ -12,7 +12,8 @@ from dcseg.affinity.config import PRESETS, AffinityConfig
 from dcseg.affinity.knn import knn_indices, smooth_features
 from dcseg.affinity.targets import PackedMasks
 from dcseg.affinity.train import _blend_pixels, _view_order, render_smoothed
-from tests.dcseg.affinity.scene import blend_from_lists, synthetic_scene
+from tests.scenes.affinity import synthetic_scene
+from tests.scenes.blends import blend_from_lists
 
 
 @pytest.fixture

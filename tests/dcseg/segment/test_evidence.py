@@ -16,7 +16,7 @@ from dcseg.segment.evidence import (
     view_evidence,
     vote_3d,
 )
-from tests.dcseg.test_blend import random_blend
+from tests.scenes.blends import random_blend
 
 
 def brute_force(

@@ -9,10 +9,11 @@ import torch
 from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityView
-from dcseg.blend import BlendWeights
 from dcseg.gaussians import Gaussians
 from dcseg.io.masks import masks_from_dense
 from dcseg.types import AgnosticMasks
+from tests.scenes.blends import blend_from_lists
+from tests.scenes.gaussians import gaussians_at
 
 HEIGHT, WIDTH = 48, 64
 FOCAL = 60.0
@@ -23,9 +24,12 @@ CENTRES = np.array([[-2.0, 0.0, 3.0], [0.0, 0.0, 3.0], [2.0, 0.0, 3.0]])
 BOXES = ((10, 20, 4, 12), (14, 26, 22, 32), (12, 24, 42, 54))
 
 
-def camera_matrix(height: int = HEIGHT, width: int = WIDTH) -> NDArray[np.float64]:
+def camera_matrix(
+    height: int = HEIGHT, width: int = WIDTH, focal: float = FOCAL
+) -> NDArray[np.float64]:
+    """Pinhole ``K`` with the principal point at the image centre."""
     return np.array(
-        [[FOCAL, 0.0, (width - 1) / 2], [0.0, FOCAL, (height - 1) / 2], [0.0, 0.0, 1.0]]
+        [[focal, 0.0, (width - 1) / 2], [0.0, focal, (height - 1) / 2], [0.0, 0.0, 1.0]]
     )
 
 
@@ -34,36 +38,11 @@ def encode(dense: NDArray[np.bool_], name: str = "f") -> AgnosticMasks:
     return masks_from_dense(name, dense)
 
 
-def blend_from_lists(
-    height: int, width: int, entries: dict[int, list[tuple[int, float]]]
-) -> BlendWeights:
-    """BlendWeights from ``{pixel: [(gaussian id, weight), ...]}``."""
-    counts = np.zeros(height * width, dtype=np.int64)
-    ids: list[int] = []
-    weights: list[float] = []
-    for p in sorted(entries):
-        counts[p] = len(entries[p])
-        ids += [i for i, _ in entries[p]]
-        weights += [w for _, w in entries[p]]
-    offsets = np.concatenate([[0], np.cumsum(counts)])
-    return BlendWeights(
-        height,
-        width,
-        torch.from_numpy(offsets),
-        torch.tensor(ids, dtype=torch.int64),
-        torch.tensor(weights, dtype=torch.float32),
-    )
-
-
 def make_gaussians(rng: np.random.Generator) -> Gaussians:
     means = np.concatenate([c + rng.normal(0.0, 0.05, (PER_GROUP, 3)) for c in CENTRES])
     n = means.shape[0]
-    return Gaussians(
-        torch.tensor(means, dtype=torch.float32),
-        torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1),
-        torch.full((n, 3), -3.0),
-        torch.zeros(n),
-        torch.zeros(n, 1, 3),
+    return gaussians_at(
+        torch.tensor(means, dtype=torch.float32), torch.full((n, 3), -3.0), torch.zeros(n)
     )
 
 

@@ -13,10 +13,23 @@ from dcseg.affinity.config import AffinityConfig
 from dcseg.assign.config import AssignConfig
 from dcseg.cluster.config import ClusterConfig
 from dcseg.evaluate.config import EvaluateConfig
+from dcseg.fields import option
 from dcseg.reconstruct.config import PRESETS as RECONSTRUCT_PRESETS
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.segment.config import MaskConfig
 from dcseg.sizes import RULE_PRESETS, SizeRules
+
+MAX_SIDE = 8192
+"""Largest width or height a job may resample its frames to (pixels); never above the capture's
+own resolution either (no upscaling, checked where the capture's size is known)."""
+
+MAX_KEYFRAMES = 100_000
+"""Most keyframes a job may train on."""
+
+MIN_WORKING_SIDE = 16
+"""Smallest working resolution (longer side, pixels) a job may ask for."""
+
+MAX_SEED = 2**31 - 1
 
 
 @dataclass(frozen=True)
@@ -36,12 +49,29 @@ class CaptureOptions:
             level is set to 0 (invalid). 0 = keep all depth (confidence files are not read).
     """
 
-    stride: int = 1
-    max_frames: int | None = None
-    size: tuple[int, int] | None = None
-    depth_trunc: float | None = None
-    intrinsics: tuple[float, float, float, float] | None = None
-    min_confidence: int = 0
+    stride: int = option(1, bounds=(1, 10_000), help="keep every stride-th frame", flag="--stride")
+    max_frames: int | None = option(
+        None, bounds=(1, 100_000), help="keep at most this many", flag="--max-frames"
+    )
+    size: tuple[int, int] | None = option(
+        None,
+        bounds=(1, MAX_SIDE),
+        help=f"resample frames to (width, height), at most {MAX_SIDE}",
+        flag="--size",
+    )
+    depth_trunc: float | None = option(
+        None, bounds=(0, 1000), above=True, help="ignore depth beyond (m)", flag="--depth-trunc"
+    )
+    intrinsics: tuple[float, float, float, float] | None = option(
+        None, help="(fx, fy, cx, cy) for layouts that store none", flag="--intrinsics"
+    )
+    min_confidence: int = option(
+        0,
+        bounds=(0, 2),
+        help="Record3D/Polycam: drop depth below this ARKit confidence (0 low, 1 medium, "
+        "2 high; 0 = keep all)",
+        flag="--min-confidence",
+    )
 
     def __post_init__(self) -> None:
         if self.stride < 1:
@@ -98,10 +128,27 @@ class FrameBudget:
         min_rotation_deg: ... or turned at least this many degrees. 0 and 0 keep every frame.
     """
 
-    max_side: int | None = 640
-    max_frames: int | None = 200
-    min_translation: float = 0.01
-    min_rotation_deg: float = 1.0
+    max_side: int | None = option(
+        640,
+        bounds=(MIN_WORKING_SIDE, MAX_SIDE),
+        none_word="native",
+        help="downscale by an integer factor until the longer side is at most this "
+        f"(pixels, {MIN_WORKING_SIDE}-{MAX_SIDE}); 'native' = no downscaling",
+        flag="--max-side",
+    )
+    max_frames: int | None = option(
+        200,
+        bounds=(1, MAX_KEYFRAMES),
+        none_word="all",
+        help=f"at most this many keyframes (1-{MAX_KEYFRAMES}); 'all' = no cap",
+        flag="--keyframes",
+    )
+    min_translation: float = option(
+        0.01, bounds=(0.0, 100.0), help="keyframe when the camera moved this far (m)"
+    )
+    min_rotation_deg: float = option(
+        1.0, bounds=(0.0, 180.0), help="... or turned this many degrees"
+    )
 
     def __post_init__(self) -> None:
         for name in ("max_side", "max_frames"):
@@ -161,8 +208,10 @@ class PipelineConfig:
     cache: CacheConfig = field(default_factory=CacheConfig)
     budget: FrameBudget = field(default_factory=FrameBudget)
     rules: SizeRules = field(default_factory=SizeRules)
-    scale: float = DEFAULT_SCALE
-    seed: int = 0
+    scale: float = option(
+        DEFAULT_SCALE, bounds=(0.0, 1.0), help="clustering scale in [0, 1]", flag="--scale"
+    )
+    seed: int = option(0, bounds=(0, MAX_SEED), help="seed of every random choice", flag="--seed")
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.scale <= 1.0:

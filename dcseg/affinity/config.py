@@ -8,59 +8,61 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+from dcseg.fields import option
+
 
 @dataclass(frozen=True)
 class AffinityConfig:
     """How scale-gated contrastive affinity features are trained on frozen Gaussians."""
 
-    feature_dim: int = 32
+    feature_dim: int = option(32, bounds=(1, 256))
     """Feature channels D per Gaussian (= outputs of the scale gate)."""
 
-    iterations: int = 10_000
+    iterations: int = option(10_000, bounds=(0, 100000))
     """Optimisation steps; one random view with masks per step (without replacement per epoch).
     At the reference size (40 views): runs grow it with their views
     (:func:`dcseg.sizes.grown_steps`)."""
 
-    rays: int = 1000
+    rays: int = option(1000, bounds=(1, 100000))
     """Pixels sampled per step among the pixels covered by at least one mask."""
 
-    random_scales: int = 8
+    random_scales: int = option(8, bounds=(0, 256))
     """Scale samples drawn from random masks per step; plus one above-max and one smallest."""
 
-    lr: float = 0.0025
+    lr: float = option(0.0025, bounds=(1e-08, 1.0))
     """Adam learning rate of the features and the gate (constant)."""
 
-    adam_eps: float = 1e-15
+    adam_eps: float = option(1e-15, bounds=(1e-20, 1.0))
     """Adam epsilon."""
 
-    init_std: float = 0.01
+    init_std: float = option(0.01, bounds=(1e-08, 10.0))
     """Features start as ``N(0, 1) * init_std``."""
 
-    knn_k: int = 16
+    knn_k: int = option(16, bounds=(1, 128))
     """Neighbours (the Gaussian itself included) of the 3D KNN feature smoothing."""
 
-    knn_sample: int = 8
+    knn_sample: int = option(8, bounds=(1, 128))
     """Neighbour slots averaged per training step (same random slots for every Gaussian)."""
 
-    pos_threshold: float = 0.75
+    pos_threshold: float = option(0.75, bounds=(-1.0, 1.0))
     """Hard-positive mining: pairs with affinity 1 and cosine below this are kept."""
 
-    neg_threshold: float = 0.5
+    neg_threshold: float = option(0.5, bounds=(-1.0, 1.0))
     """Hard-negative mining: pairs with affinity 0 and cosine above this are kept."""
 
-    max_pair_weight: float = 10.0
+    max_pair_weight: float = option(10.0, bounds=(1.0, 1000.0))
     """Pair weights are min-max rescaled to ``[1, max_pair_weight]``."""
 
-    norm_weight: float = 1.0
+    norm_weight: float = option(1.0, bounds=(0.0, 100.0))
     """Weight of ``(1 - mean ||F(p)||)^2`` over the sampled pixels (SAGA's ``rfn``)."""
 
-    n_quantiles: int = 1000
+    n_quantiles: int = option(1000, bounds=(1, 100000))
     """Quantiles of the scale normalisation (sklearn ``QuantileTransformer`` default)."""
 
-    min_scale_points: int = 10
+    min_scale_points: int = option(10, bounds=(2, 1000000))
     """A mask with fewer valid 3D points (after erosion) has no scale and is not used."""
 
-    seed: int = 0
+    seed: int = option(0, fixed=True)
     """Seed of every random choice (initialisation, views, pixels, scales, pair sampling)."""
 
     def __post_init__(self) -> None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from dcseg.fields import option
+
 AssignMode = Literal["assignment", "matching"]
 MapsFrom = Literal["gaussians", "clusters"]
 
@@ -189,7 +191,12 @@ class AssignConfig:
             36.58 / 36.58.
     """
 
-    mode: AssignMode = "assignment"
+    mode: AssignMode = option(
+        "assignment",
+        choices=("assignment", "matching"),
+        help="class replication (assignment) or one-to-one",
+        flag="--matcher",
+    )
     replicas: int | Literal["components"] = 3
     min_iou: float = 0.05
     min_area: int = 1000
@@ -220,7 +227,13 @@ class AssignConfig:
     complete: bool = True
     completion_rounds: int = 3
     evidence_weight: float = 1.0
-    maps_from: MapsFrom = "gaussians"
+    maps_from: MapsFrom = option(
+        "gaussians",
+        choices=("gaussians", "clusters"),
+        help="rendered label maps from the Gaussians' final classes (gaussians, as in the "
+        "labelled PLY) or from the cluster maps through each cluster's class (clusters)",
+        flag="--label-maps",
+    )
     filter_label_maps: bool = False
 
     def __post_init__(self) -> None:

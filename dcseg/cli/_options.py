@@ -1,13 +1,35 @@
-"""Command-line options shared by every verb that reads a capture."""
+"""Command-line flags generated from the option declarations, and the one builder behind them.
+
+Each flag is declared with its field (:func:`dcseg.fields.option`: ``flag``, ``help``,
+bounds); :func:`add_flags` adds a group of them to a verb and :func:`given` reads back the
+ones given, as the job options the API takes (``{"capture": {...}, "budget": {...}}``), which
+:func:`build` turns into the job's config through :func:`dcseg.options.build_config`, naming
+the flag of a refused value.
+"""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import typing
+from collections.abc import Callable, Mapping
+from types import NoneType
 from typing import Any
 
-from dcseg.config import CaptureOptions, JobConfig, PipelineConfig
+from dcseg.config import CaptureOptions, FrameBudget, JobConfig, PipelineConfig
 from dcseg.errors import InputError
-from dcseg.options import build_config, parse_options
+from dcseg.fields import BOUNDS, CHOICES, FLAG, HELP, NONE_WORD
+from dcseg.option_models import Member, declared, settable
+from dcseg.options import SEGMENT_OPTIONS, build_config, parse_options
+from dcseg.reconstruct.config import ReconstructConfig
+
+GROUPS: dict[str, dict[str, Member]] = {
+    "capture": settable(CaptureOptions),
+    "budget": settable(FrameBudget),
+    "segment": SEGMENT_OPTIONS,
+    "reconstruct": settable(ReconstructConfig),
+}
+"""The job option groups that have flags, with their settable fields."""
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -32,88 +54,96 @@ def parse_intrinsics(text: str) -> tuple[float, float, float, float]:
     return fx, fy, cx, cy
 
 
-def add_capture_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``--stride --max-frames --size --depth-trunc --intrinsics --min-confidence`` to a
-    verb's parser."""
-    group = parser.add_argument_group("capture options")
-    group.add_argument("--stride", type=int, default=1, help="keep every N-th frame")
-    group.add_argument("--max-frames", type=int, help="keep at most N frames (after --stride)")
-    group.add_argument("--size", type=parse_size, help="downscale frames to WxH")
-    group.add_argument("--depth-trunc", type=float, help="ignore depth beyond this many metres")
-    group.add_argument(
-        "--intrinsics",
-        type=parse_intrinsics,
-        help="fx,fy,cx,cy at native resolution, for layouts without stored intrinsics",
-    )
-    group.add_argument(
-        "--min-confidence",
-        type=int,
-        default=0,
-        help="Record3D/Polycam: drop depth below this ARKit confidence level "
-        "(0 low, 1 medium, 2 high; default 0 = keep all)",
-    )
-
-
 def parse_cap(text: str) -> int | str:
     """An integer (``640``) or a word (``native``, ``all``); the config builder checks which."""
     return int(text) if text.strip().lstrip("-").isdigit() else text.strip().lower()
 
 
-def add_budget_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``--max-side N|native --keyframes N|all`` (the preset's frame budget otherwise)."""
-    group = parser.add_argument_group("frame budget (default: the preset's)")
-    group.add_argument(
-        "--max-side",
-        type=parse_cap,
-        help="train at the capture's resolution divided by the smallest integer factor that "
-        "brings its longer side to at most N pixels; native = full resolution "
-        "(fast 640, paper 1600); outputs stay at the capture's resolution",
-    )
-    group.add_argument(
-        "--keyframes",
-        type=parse_cap,
-        help="train on at most N keyframes chosen by camera motion, evenly spaced; "
-        "all = every frame that moved (fast 200, paper 1000)",
-    )
+def add_flags(parser: Any, group: str, only: tuple[str, ...] | None = None) -> None:
+    """Add the flags of the job option group ``group`` (:data:`GROUPS`; ``only`` these of its
+    options) to ``parser``; unset flags leave the preset's value."""
+    for key, (cls, name) in GROUPS[group].items():
+        if only is not None and key not in only:
+            continue
+        f = declared(cls, name)
+        flag = f.metadata.get(FLAG)
+        if flag is None:
+            continue
+        kind = _parser(f, typing.get_type_hints(cls)[name])
+        choices = f.metadata.get(CHOICES)
+        parser.add_argument(flag, dest=dest(flag), type=kind, choices=choices, help=_help(cls, f))
 
 
-def budget_fields(args: argparse.Namespace) -> dict[str, Any]:
-    """The ``budget`` job options of the flags added by :func:`add_budget_options` (given only)."""
-    given = {"max_side": args.max_side, "max_frames": args.keyframes}
-    return {key: value for key, value in given.items() if value is not None}
-
-
-FLAGS = {
-    "capture.stride": "--stride",
-    "capture.max_frames": "--max-frames",
-    "capture.size": "--size",
-    "capture.depth_trunc": "--depth-trunc",
-    "capture.intrinsics": "--intrinsics",
-    "capture.min_confidence": "--min-confidence",
-    "segment.scale": "--scale",
-    "segment.matcher": "--matcher",
-    "segment.label_maps": "--label-maps",
-    "segment.seed": "--seed",
-    "budget.max_side": "--max-side",
-    "budget.max_frames": "--keyframes",
+TITLES = {
+    "capture": "capture options",
+    "budget": "frame budget (default: the preset's)",
+    "segment": "method",
+    "reconstruct": "reconstruction (default: the preset's)",
 }
-"""The flag of each job option the CLI sets (named in error messages)."""
 
 
-def capture_fields(args: argparse.Namespace) -> dict[str, Any]:
-    """The ``capture`` job options of the flags added by :func:`add_capture_options`."""
-    return {
-        "stride": args.stride,
-        "max_frames": args.max_frames,
-        "size": args.size,
-        "depth_trunc": args.depth_trunc,
-        "intrinsics": args.intrinsics,
-        "min_confidence": args.min_confidence,
-    }
+def add_groups(parser: argparse.ArgumentParser, *groups: str) -> None:
+    """Add the flags of each of ``groups`` as an argument group of its own."""
+    for group in groups:
+        add_flags(parser.add_argument_group(TITLES[group]), group)
 
 
-def build(preset: str | PipelineConfig, options: dict[str, Any]) -> JobConfig:
-    """The configs of ``options`` through the one builder the API and the worker use
+def options_of(args: argparse.Namespace, *groups: str) -> dict[str, dict[str, Any]]:
+    """The job options of the flags of ``groups`` that were given."""
+    return {group: given(args, group) for group in groups}
+
+
+def given(args: argparse.Namespace, group: str) -> dict[str, Any]:
+    """The options of ``group`` whose flags were given, by their job option names."""
+    values: dict[str, Any] = {}
+    for key, (cls, name) in GROUPS[group].items():
+        flag = declared(cls, name).metadata.get(FLAG)
+        value = None if flag is None else getattr(args, dest(flag), None)
+        if value is not None:
+            values[key] = value
+    return values
+
+
+def dest(flag: str) -> str:
+    """The ``argparse`` attribute of ``flag`` (``--max-side`` -> ``max_side``)."""
+    return flag.lstrip("-").replace("-", "_")
+
+
+def _parser(f: dataclasses.Field[Any], hint: Any) -> Callable[[str], Any] | None:
+    if f.metadata.get(CHOICES):
+        return None
+    if f.metadata.get(NONE_WORD):
+        return parse_cap
+    args = typing.get_args(hint)
+    base = next(a for a in args if a is not NoneType) if NoneType in args else hint
+    if typing.get_origin(base) is tuple:
+        return parse_size if typing.get_args(base)[0] is int else parse_intrinsics
+    return base if base in (int, float) else None  # type: ignore[no-any-return]
+
+
+def _help(cls: type[Any], f: dataclasses.Field[Any]) -> str:
+    text = f.metadata.get(HELP)
+    if text:
+        return str(text)
+    bounds = f.metadata.get(BOUNDS)
+    where = f"{cls.__name__}.{f.name}"
+    return where if bounds is None else f"{where}, in {list(bounds)} (default: the preset's)"
+
+
+def flags() -> dict[str, str]:
+    """The flag of each job option the CLI sets (named in error messages), e.g.
+    ``{"budget.max_frames": "--keyframes"}``."""
+    named: dict[str, str] = {}
+    for group, members in GROUPS.items():
+        for key, (cls, name) in members.items():
+            flag = declared(cls, name).metadata.get(FLAG)
+            if flag is not None:
+                named[f"{group}.{key}"] = flag
+    return named
+
+
+def build(preset: str | PipelineConfig, options: Mapping[str, Any]) -> JobConfig:
+    """The config of ``options`` through the one builder the API and the worker use
     (:func:`dcseg.options.build_config`); exits naming the flag of a refused value."""
     try:
         return build_config(preset, parse_options(options))
@@ -122,7 +152,7 @@ def build(preset: str | PipelineConfig, options: dict[str, Any]) -> JobConfig:
         raise SystemExit("dcseg: " + "; ".join(lines)) from None
 
 
-def rebuild(stored: PipelineConfig, options: dict[str, Any]) -> JobConfig:
+def rebuild(stored: PipelineConfig, options: Mapping[str, Any]) -> JobConfig:
     """A stored run's config with ``options`` (e.g. ``{"segment": {"scale": 0.5}}``), through
     the same builder and with the same error report as :func:`build`."""
     return build(stored, options)
@@ -130,12 +160,12 @@ def rebuild(stored: PipelineConfig, options: dict[str, Any]) -> JobConfig:
 
 def _flag(path: str) -> str:
     field = path.removeprefix("options.")
-    for name, flag in FLAGS.items():
+    for name, flag in flags().items():
         if field == name or field.startswith(name + "."):
             return f"{flag} ({path})"
     return path
 
 
 def capture_options(args: argparse.Namespace) -> CaptureOptions:
-    """:class:`CaptureOptions` from the flags added by :func:`add_capture_options`."""
-    return build("fast", {"capture": capture_fields(args)}).capture
+    """:class:`CaptureOptions` from the capture flags (:func:`add_flags`)."""
+    return build("fast", {"capture": given(args, "capture")}).capture

@@ -8,8 +8,8 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from dcseg.cli._options import budget_fields, build, capture_fields
-from dcseg.config import DEFAULT_SCALE, JobConfig
+from dcseg.cli._options import add_groups, build, given, options_of
+from dcseg.config import JobConfig
 from dcseg.progress import Progress
 
 log = logging.getLogger("dcseg")
@@ -18,23 +18,11 @@ Job = Callable[[Progress], dict[str, Any]]
 
 
 def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
-    """``--preset --matcher --scale --label-maps --seed --overwrite --quiet``."""
-    group = parser.add_argument_group("method")
-    group.add_argument("--preset", choices=("fast", "paper"), default="fast", help="(fast)")
-    group.add_argument(
-        "--matcher", choices=("assignment", "matching"), default="assignment", help="(assignment)"
-    )
-    group.add_argument(
-        "--scale", type=float, default=DEFAULT_SCALE, help="clustering scale in [0, 1]"
-    )
-    group.add_argument(
-        "--label-maps",
-        choices=("gaussians", "clusters"),
-        default="gaussians",
-        help="labels/ rendered from the Gaussians' final classes, as in the labelled PLY "
-        "(gaussians), or from the cluster maps through each cluster's class (clusters)",
-    )
-    group.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    """``--preset``, the capture, budget and segment flags (:mod:`dcseg.cli._options`),
+    ``--surface-priors --refine-poses --device --overwrite --quiet``."""
+    parser.add_argument("--preset", choices=("fast", "paper"), default="fast", help="(fast)")
+    add_groups(parser, "segment", "capture", "budget")
+    group = parser.add_argument_group("reconstruction")
     add_reconstruct_flags(group)
     add_device_option(group)
     add_output_options(parser)
@@ -59,7 +47,8 @@ def add_reconstruct_flags(parser: Any) -> None:
 
 
 def reconstruct_fields(args: argparse.Namespace) -> dict[str, Any]:
-    """The reconstruction overrides of ``--surface-priors`` and ``--refine-poses``."""
+    """The reconstruction overrides of ``--surface-priors``, ``--refine-poses`` and the
+    reconstruction flags a verb has (``dcseg reconstruct --iterations``, ...)."""
     from dcseg.reconstruct.config import REFINE_POSES, SURFACE_PRIORS
 
     fields: dict[str, Any] = {}
@@ -67,7 +56,7 @@ def reconstruct_fields(args: argparse.Namespace) -> dict[str, Any]:
         fields.update(SURFACE_PRIORS)
     if getattr(args, "refine_poses", False):
         fields.update(REFINE_POSES)
-    return fields
+    return {**fields, **given(args, "reconstruct")}  # single flags win over the bundles
 
 
 def add_device_option(parser: Any) -> None:
@@ -85,20 +74,9 @@ def add_output_options(parser: argparse.ArgumentParser) -> None:
 
 
 def job_config(args: argparse.Namespace) -> JobConfig:
-    """The configs of ``--preset --scale --matcher --label-maps --seed``, the capture and
-    budget flags."""
-    segment = {
-        "scale": args.scale,
-        "matcher": args.matcher,
-        "seed": args.seed,
-        "label_maps": args.label_maps,
-    }
-    options = {
-        "capture": capture_fields(args),
-        "segment": segment,
-        "budget": budget_fields(args),
-        "reconstruct": reconstruct_fields(args),
-    }
+    """The config of ``--preset`` and every option flag given, through the one builder."""
+    options = options_of(args, "segment", "capture", "budget")
+    options["reconstruct"] = reconstruct_fields(args)
     return build(args.preset, options)
 
 

@@ -8,13 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from dcseg.cli._options import (
-    add_budget_options,
-    add_capture_options,
-    budget_fields,
-    build,
-    capture_fields,
-)
+from dcseg.cli._options import add_flags, add_groups, build, options_of
 from dcseg.cli._pipeline import add_device_option, add_reconstruct_flags, reconstruct_fields
 from dcseg.config import JobConfig
 
@@ -37,41 +31,18 @@ def register(subparsers: Any) -> None:
         help="write into a non-empty OUT (replaces scene.ply, reconstruction.json, poses.json)",
     )
     parser.add_argument("--preset", choices=["fast", "paper"], default="fast", help="parameters")
-    parser.add_argument("--iterations", type=int, help="optimisation steps (overrides preset)")
-    parser.add_argument("--holdout", type=int, help="hold out every N-th frame (0 = none)")
-    parser.add_argument("--seed", type=int, help="random seed (default 0)")
-    parser.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], help="SH colour degree")
-    parser.add_argument("--train-downscale", type=int, help="train at 1/N resolution")
-    parser.add_argument(
-        "--full-res-from", type=int, help="train at full resolution from this step on"
-    )
-    parser.add_argument("--backend", help="renderer backend (default: the renderer's choice)")
+    add_groups(parser, "reconstruct")
+    add_flags(parser, "segment", only=("seed",))
     add_reconstruct_flags(parser)
     add_device_option(parser)
-    add_capture_options(parser)
-    add_budget_options(parser)
+    add_groups(parser, "capture", "budget")
     parser.set_defaults(run=run)
 
 
 def _config(args: argparse.Namespace) -> JobConfig:
     """The job config of the flags, through the one config builder."""
-    overrides = {
-        "iterations": args.iterations,
-        "holdout": args.holdout,
-        "sh_degree": args.sh_degree,
-        "train_downscale": args.train_downscale,
-        "full_res_from": args.full_res_from,
-        "backend": args.backend,
-    }
-    chosen = {key: value for key, value in overrides.items() if value is not None}
-    chosen = {**reconstruct_fields(args), **chosen}
-    options = {
-        "reconstruct": chosen,
-        "capture": capture_fields(args),
-        "budget": budget_fields(args),
-    }
-    if args.seed is not None:
-        options["segment"] = {"seed": args.seed}
+    options = options_of(args, "capture", "budget", "segment")
+    options["reconstruct"] = reconstruct_fields(args)
     return build(args.preset, options)
 
 

@@ -7,7 +7,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-from dcseg.cli._options import add_budget_options, add_capture_options
 from dcseg.cli._pipeline import add_pipeline_options, job_config, run_reporting
 
 
@@ -26,8 +25,6 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--scene", type=Path, help="use this 3DGS scene.ply, skip reconstruction")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     add_pipeline_options(parser)
-    add_capture_options(parser)
-    add_budget_options(parser)
     parser.set_defaults(run=run)
 
 

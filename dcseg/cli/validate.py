@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from dcseg.cli._options import add_capture_options, capture_options
+from dcseg.cli._options import add_groups, capture_options
 
 
 def register(subparsers: Any) -> None:
@@ -24,7 +24,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--vocabulary", type=Path, help="class names (.txt or .json)")
     parser.add_argument("--gt", type=Path, help="ground-truth PLY (x y z label [instance])")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
-    add_capture_options(parser)
+    add_groups(parser, "capture")
     parser.set_defaults(run=run)
 
 

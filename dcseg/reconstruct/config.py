@@ -8,44 +8,46 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+from dcseg.fields import option
+
 
 @dataclass(frozen=True)
 class ReconstructConfig:
     """How Gaussians are initialised from depth and optimised against the training views."""
 
-    iterations: int = 30_000
+    iterations: int = option(30_000, bounds=(0, 100000), flag="--iterations")
     """Optimisation steps; one random training view per step. At the reference size (35
     training views): runs grow it with their training views, and the step schedule
     (``sh_degree_interval``, ``full_res_from``, ``densify_*``, ``opacity_reset_every``) with
     it (:func:`dcseg.sizes.grown_steps`)."""
 
-    sh_degree: int = 3
+    sh_degree: int = option(3, bounds=(0, 3), flag="--sh-degree")
     """Largest spherical-harmonic degree of the colour (0-3)."""
 
-    sh_degree_interval: int = 1000
+    sh_degree_interval: int = option(1000, bounds=(1, 100000))
     """Raise the active SH degree by one every this many steps (3DGS schedule)."""
 
-    holdout: int = 8
+    holdout: int = option(8, bounds=(0, 1000), flag="--holdout")
     """Every ``holdout``-th frame (index 0, k, 2k, ...) is held out for evaluation; 0 = none."""
 
-    seed: int = 0
+    seed: int = option(0, fixed=True)
     """Seed of every random choice (view order, pixel subsampling, split samples)."""
 
-    train_downscale: int = 1
+    train_downscale: int = option(1, bounds=(1, 16), flag="--train-downscale")
     """Train on views downscaled by this integer factor (evaluation is at full resolution)."""
 
-    full_res_from: int | None = None
+    full_res_from: int | None = option(None, bounds=(0, 100000), flag="--full-res-from")
     """From this step on, train on full-resolution views (coarse to fine); None = never."""
 
-    full_res_crop: float = 1.0
+    full_res_crop: float = option(1.0, bounds=(0.05, 1.0))
     """Full-resolution steps train on a random window of this fraction of the width and height
     (1 = whole views); the coarse steps always see whole (downscaled) views."""
 
-    backend: str | None = None
+    backend: str | None = option(None, choices=("cpu", "reference", "gsplat"), flag="--backend")
     """Renderer backend (``"cpu"``, ``"reference"``, ...); None = the renderer's default."""
 
     # --- sensor depth ---
-    depth_filter_window: int = 5
+    depth_filter_window: int = option(5, bounds=(1, 15))
     """Edge (odd, pixels) of the median window that denoises the training frames' depth before
     initialisation and the depth loss (:mod:`dcseg.reconstruct.depth_filter`); 1 = off.
     Held-out frames are evaluated against the unfiltered sensor depth. Noise-free depth is
@@ -55,22 +57,22 @@ class ReconstructConfig:
     4.34 / 3.61 / 3.66 mm; 4 mm at 1 m (heavy) 22.4 mm raw, 9.66 / 6.75 / 6.02 mm. 7 x 7
     helps only the heavy noise and costs twice the time."""
 
-    depth_filter_k: float = 5.0
+    depth_filter_k: float = option(5.0, bounds=(0.1, 100.0))
     """A pixel takes its window median only where the two differ by at most this many times
     the view's measured noise at that depth. Same views, window 5, k = 3 / 5 / 8: 3.75 /
     3.61 / 3.68 mm (default level), 7.24 / 6.75 / 6.76 mm (heavy)."""
 
     # --- camera poses ---
-    pose_lr: float = 0.0
+    pose_lr: float = option(0.0, bounds=(0.0, 0.1))
     """Learning rate (radians and metres per step) of a rigid correction per training view
     fitted with the Gaussians (:mod:`dcseg.reconstruct.poses`), decaying log-linearly to a
     tenth of it; the refined poses replace the capture's for every later stage. 0 = the
     capture's poses are exact."""
 
-    pose_from: int = 0
+    pose_from: int = option(0, bounds=(0, 100000))
     """Step from which poses are refined (the scene first fits the capture's poses)."""
 
-    pose_align_steps: int = 30
+    pose_align_steps: int = option(30, bounds=(0, 10000))
     """With ``pose_lr`` > 0, steps that align each held-out view's pose to the fitted
     Gaussians (frozen) before it is scored, at the training resolution: held-out poses carry
     the same error as the trained ones, and the score should measure the scene, not them.
@@ -78,45 +80,45 @@ class ReconstructConfig:
     left the same error as 60 at 1e-3 (0.08-0.23 deg against 0.09-0.20) in half the time;
     at quarter resolution they left more (0.10-0.35 deg)."""
 
-    pose_align_lr: float = 2e-3
+    pose_align_lr: float = option(2e-3, bounds=(1e-06, 0.1))
     """Starting rate of those alignment steps (decaying to a tenth)."""
 
     # --- initialisation from depth ---
-    init_pixel_stride: int = 2
+    init_pixel_stride: int = option(2, bounds=(1, 64))
     """Back-project every ``stride``-th pixel along both axes of every training frame."""
 
-    voxel_size: float | None = None
+    voxel_size: float | None = option(None, bounds=(0.0001, 1.0))
     """Voxel edge (metres) of the downsampled init cloud; None = ``extent * voxel_fraction``."""
 
-    voxel_fraction: float = 1.0 / 200.0
+    voxel_fraction: float = option(1.0 / 200.0, bounds=(1e-05, 0.1))
     """Automatic voxel size as a fraction of the scene extent."""
 
-    voxel_min: float = 0.005
+    voxel_min: float = option(0.005, bounds=(0.0001, 1.0))
     """Lower clip of the automatic voxel size (metres)."""
 
-    voxel_max: float = 0.05
+    voxel_max: float = option(0.05, bounds=(0.0001, 1.0))
     """Upper clip of the automatic voxel size (metres)."""
 
-    max_init_points: int = 200_000
+    max_init_points: int = option(200_000, bounds=(1, 5000000))
     """Cap on initial Gaussians; the voxel size grows until the cloud fits. At the reference
     size: runs grow it with their training pixels (:func:`dcseg.sizes.gaussian_growth`)."""
 
-    init_opacity: float = 0.3
+    init_opacity: float = option(0.3, bounds=(0.0001, 0.9999))
     """Opacity of every initial Gaussian."""
 
-    init_thickness: float | None = None
+    init_thickness: float | None = option(None, bounds=(0.001, 1.0))
     """Start every Gaussian as a disc in the plane of its neighbours, this fraction as thick
     as it is wide (:func:`dcseg.reconstruct.surface.disc_frames`); None = isotropic blobs."""
 
     # --- surface priors (dcseg.reconstruct.surface) ---
-    thickness_weight: float = 0.0
+    thickness_weight: float = option(0.0, bounds=(0.0, 1000.0))
     """Weight of the mean smallest scale (metres) in the loss: keeps Gaussians thin discs."""
 
-    centre_weight: float = 0.0
+    centre_weight: float = option(0.0, bounds=(0.0, 1000.0))
     """Weight of the mean distance (metres) of the Gaussian centres to the observed depth of
     the step's view, counting the centres within ``centre_band`` of it."""
 
-    centre_band: float = 4.0
+    centre_band: float = option(4.0, bounds=(0.0, 100.0))
     """The band of ``centre_weight``, in initial voxel sizes (see ``voxel_size``)."""
 
     planar_depth: bool = False
@@ -125,60 +127,60 @@ class ReconstructConfig:
     (:func:`dcseg.render.render_planar`)."""
 
     # --- loss ---
-    ssim_lambda: float = 0.2
+    ssim_lambda: float = option(0.2, bounds=(0.0, 1.0))
     """Weight of ``1 - SSIM`` in the RGB loss ``(1 - l) * L1 + l * (1 - SSIM)``."""
 
-    depth_weight: float = 0.5
+    depth_weight: float = option(0.5, bounds=(0.0, 100.0))
     """Weight of the L1 loss on expected depth at valid depth pixels (metres)."""
 
     # --- optimiser (Adam, eps 1e-15) ---
-    means_lr_init: float = 1.6e-4
+    means_lr_init: float = option(1.6e-4, bounds=(0.0, 1.0))
     """Initial position learning rate, times the scene extent."""
 
-    means_lr_final: float = 1.6e-6
+    means_lr_final: float = option(1.6e-6, bounds=(0.0, 1.0))
     """Final position learning rate, times the scene extent (log-linear decay)."""
 
-    sh_dc_lr: float = 2.5e-3
+    sh_dc_lr: float = option(2.5e-3, bounds=(0.0, 1.0))
     """Learning rate of the SH DC coefficients."""
 
-    sh_rest_lr: float = 1.25e-4
+    sh_rest_lr: float = option(1.25e-4, bounds=(0.0, 1.0))
     """Learning rate of the higher-order SH coefficients."""
 
-    opacity_lr: float = 0.05
+    opacity_lr: float = option(0.05, bounds=(0.0, 1.0))
     """Learning rate of the opacity logits."""
 
-    scales_lr: float = 5e-3
+    scales_lr: float = option(5e-3, bounds=(0.0, 1.0))
     """Learning rate of the log scales."""
 
-    quats_lr: float = 1e-3
+    quats_lr: float = option(1e-3, bounds=(0.0, 1.0))
     """Learning rate of the quaternions."""
 
     # --- densification and pruning ---
-    densify_from: int = 500
+    densify_from: int = option(500, bounds=(0, 100000))
     """First step at which densification runs."""
 
-    densify_until: int = 15_000
+    densify_until: int = option(15_000, bounds=(0, 100000))
     """Last step at which densification runs."""
 
-    densify_every: int = 100
+    densify_every: int = option(100, bounds=(1, 100000))
     """Densify and prune every this many steps."""
 
-    grad_threshold: float = 2e-4
+    grad_threshold: float = option(2e-4, bounds=(0.0, 1.0))
     """Mean view-space (NDC) position-gradient norm above which a Gaussian is densified."""
 
-    clone_scale_fraction: float = 0.01
+    clone_scale_fraction: float = option(0.01, bounds=(0.0, 1.0))
     """Gaussians whose largest scale is at most this times the extent are cloned, else split."""
 
-    prune_opacity: float = 0.005
+    prune_opacity: float = option(0.005, bounds=(0.0, 1.0))
     """Gaussians with a lower opacity are pruned."""
 
-    prune_scale_fraction: float = 0.1
+    prune_scale_fraction: float = option(0.1, bounds=(0.0, 10.0))
     """Gaussians whose largest world scale exceeds this times the extent are pruned."""
 
-    opacity_reset_every: int = 3000
+    opacity_reset_every: int = option(3000, bounds=(0, 100000))
     """Reset opacities to at most 0.01 every this many steps during densification; 0 = never."""
 
-    max_gaussians: int = 1_000_000
+    max_gaussians: int = option(1_000_000, bounds=(1, 10000000))
     """Densification stops adding Gaussians beyond this count. At the reference size: runs
     grow it with their training pixels (:func:`dcseg.sizes.gaussian_growth`)."""
 

@@ -12,15 +12,18 @@ import pytest
 from dcseg.affinity.config import PRESETS as AFFINITY_PRESETS
 from dcseg.affinity.config import AffinityConfig
 from dcseg.cli import main
-from dcseg.config import BUDGET_PRESETS, CaptureOptions, FrameBudget, PipelineConfig, preset
-from dcseg.errors import InputError
-from dcseg.options import (
-    AFFINITY_BOUNDS,
+from dcseg.config import (
+    BUDGET_PRESETS,
     MAX_KEYFRAMES,
     MAX_SIDE,
-    NOT_OVERRIDABLE,
-    RECONSTRUCT_BOUNDS,
-    RECONSTRUCT_CHOICES,
+    CaptureOptions,
+    FrameBudget,
+    PipelineConfig,
+    preset,
+)
+from dcseg.errors import InputError
+from dcseg.fields import BOUNDS, CHOICES, FIXED
+from dcseg.options import (
     JobOptions,
     build_config,
     from_stored,
@@ -31,18 +34,23 @@ from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.sizes import SCALED, SceneSize, resolve
 
 
-@pytest.mark.parametrize(
-    ("stage", "bounds", "choices"),
-    [
-        (ReconstructConfig, RECONSTRUCT_BOUNDS, RECONSTRUCT_CHOICES),
-        (AffinityConfig, AFFINITY_BOUNDS, {}),
-    ],
-)
-def test_every_overridable_field_is_bounded_or_a_choice(stage, bounds, choices):
+def declared(stage: type, key: str) -> dict[str, object]:
+    """Each field's ``key`` declaration (:func:`dcseg.fields.option`), where it has one."""
+    return {f.name: f.metadata[key] for f in dataclasses.fields(stage) if f.metadata.get(key)}
+
+
+RECONSTRUCT_BOUNDS = declared(ReconstructConfig, BOUNDS)
+AFFINITY_BOUNDS = declared(AffinityConfig, BOUNDS)
+
+
+@pytest.mark.parametrize("stage", [ReconstructConfig, AffinityConfig])
+def test_every_overridable_field_is_bounded_or_a_choice(stage):
     hints = typing.get_type_hints(stage)
     switches = {name for name, hint in hints.items() if hint is bool}
-    names = {f.name for f in dataclasses.fields(stage)} - set(NOT_OVERRIDABLE)
+    names = {f.name for f in dataclasses.fields(stage)} - set(declared(stage, FIXED))
+    bounds, choices = declared(stage, BOUNDS), declared(stage, CHOICES)
     assert names == set(bounds) | set(choices) | switches
+    assert set(declared(stage, FIXED)) == {"seed"}
 
 
 def test_a_switch_takes_only_a_json_boolean():

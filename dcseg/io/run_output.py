@@ -52,7 +52,8 @@ from dcseg.io.semantic import (
     write_semantic_png,
     write_vocabulary,
 )
-from dcseg.pipeline import Labels, Segmentation, TrainedScene
+from dcseg.pipeline import TrainedScene
+from dcseg.segmentation import Labels, Segmentation
 from dcseg.types import SemanticMap, Vocabulary
 
 PREVIEW_VIEWS = 4

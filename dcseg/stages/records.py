@@ -12,7 +12,7 @@ from dcseg.stages.base import Clock, peak_mb
 if TYPE_CHECKING:
     from dcseg.config import PipelineConfig
     from dcseg.io.run_output import SavedRun
-    from dcseg.pipeline import Segmentation
+    from dcseg.segmentation import Segmentation
 
 
 def base_record(saved: SavedRun, cfg: PipelineConfig, clock: Clock) -> dict[str, Any]:

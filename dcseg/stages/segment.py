@@ -25,7 +25,7 @@ from dcseg.stages.train import RUN_RECORD
 if TYPE_CHECKING:
     from dcseg.config import PipelineConfig
     from dcseg.io.run_output import SavedRun
-    from dcseg.pipeline import Labels
+    from dcseg.segmentation import Labels
     from dcseg.types import GroundTruth
 
 FROM_TRAIN_SKIPPED = ("semantic", "vocabulary.json", "clusters.npz")

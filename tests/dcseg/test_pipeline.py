@@ -24,8 +24,9 @@ from dcseg.jobs import (
     stored_config,
 )
 from dcseg.options import build_config, parse_options
-from dcseg.pipeline import Segmentation, segment_scene
+from dcseg.pipeline import segment_scene
 from dcseg.segment import class_agreement, label_map
+from dcseg.segmentation import Segmentation
 from dcseg.stages import RECONSTRUCT, TRAIN, VALIDATE
 
 pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")

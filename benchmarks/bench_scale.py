@@ -57,7 +57,7 @@ def child(args: argparse.Namespace) -> int:
         options["reconstruct"]["iterations"] = args.reconstruct_iterations
     if args.affinity_iterations is not None:
         options["affinity"]["iterations"] = args.affinity_iterations
-    for name, value in (("max_side", args.max_side), ("max_frames", args.keyframes)):
+    for name, value in (("max_side", args.max_side), ("max_keyframes", args.keyframes)):
         if value is not None:
             options["budget"][name] = int(value) if value.isdigit() else value
     config = build_config(args.preset, parse_options(options))
@@ -143,7 +143,7 @@ def write(args: argparse.Namespace, rows: list[dict[str, Any]]) -> None:
             "reconstruct.iterations": args.reconstruct_iterations,
             "affinity.iterations": args.affinity_iterations,
             "budget.max_side": args.max_side,
-            "budget.max_frames": args.keyframes,
+            "budget.max_keyframes": args.keyframes,
         },
         "machine": {"cpus": len(os.sched_getaffinity(0)), "python": platform.python_version()},
         "rows": rows,

@@ -5,6 +5,7 @@ This module must never import torch: the HTTP service imports it to describe job
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
@@ -121,7 +122,7 @@ class FrameBudget:
     Attributes:
         max_side: frames are downscaled by the smallest integer factor that brings their
             longer side to at most this many pixels; None = native resolution.
-        max_frames: at most this many keyframes, evenly spaced over those the pose rule keeps;
+        max_keyframes: at most this many keyframes, evenly spaced over those the pose rule keeps;
             None = every frame the pose rule keeps.
         min_translation: a frame is a keyframe when its camera moved at least this many metres
             since the last keyframe ...
@@ -136,12 +137,12 @@ class FrameBudget:
         f"(pixels, {MIN_WORKING_SIDE}-{MAX_SIDE}); 'native' = no downscaling",
         flag="--max-side",
     )
-    max_frames: int | None = option(
+    max_keyframes: int | None = option(
         200,
         bounds=(1, MAX_KEYFRAMES),
         none_word="all",
         help=f"at most this many keyframes (1-{MAX_KEYFRAMES}); 'all' = no cap",
-        flag="--keyframes",
+        flag="--max-keyframes",
     )
     min_translation: float = option(
         0.01, bounds=(0.0, 100.0), help="keyframe when the camera moved this far (m)"
@@ -151,7 +152,7 @@ class FrameBudget:
     )
 
     def __post_init__(self) -> None:
-        for name in ("max_side", "max_frames"):
+        for name in ("max_side", "max_keyframes"):
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise ValueError(f"{name} must be >= 1 or None, got {value}")
@@ -163,13 +164,13 @@ class FrameBudget:
 
 BUDGET_PRESETS: dict[str, FrameBudget] = {
     "fast": FrameBudget(),
-    "paper": FrameBudget(max_side=1600, max_frames=1000),
+    "paper": FrameBudget(max_side=1600, max_keyframes=1000),
 }
 """The frame budget of each preset. ``fast`` trains a 1200x680 Replica capture at 600x340 and at
 most 200 keyframes; ``paper`` keeps 1200x680 and ScanNet's 1296x968 native, at most 1000."""
 
 NATIVE_BUDGET = FrameBudget(
-    max_side=None, max_frames=None, min_translation=0.0, min_rotation_deg=0.0
+    max_side=None, max_keyframes=None, min_translation=0.0, min_rotation_deg=0.0
 )
 """Every frame at native resolution (what reading a capture without a budget gives)."""
 
@@ -227,7 +228,7 @@ class PipelineConfig:
         :data:`RETIRED_KEYS` are dropped (their stage's current behaviour applies) and listed
         as ``"stage.key"`` in the second value; any other unknown key raises ``ValueError``.
         """
-        kept, dropped = dict(data), []
+        kept, dropped = renamed(data, RENAMED_KEYS), []
         for stage, retired in RETIRED_KEYS.items():
             section = kept.get(stage)
             if not isinstance(section, dict):
@@ -301,6 +302,26 @@ RETIRED_KEYS: dict[str, dict[str, str]] = {
 with what became of each: :meth:`PipelineConfig.from_stored` drops them so that re-clustering
 and re-classifying older runs keep working. A field removed from a stage config is added here
 in the same change."""
+
+
+RENAMED_KEYS: dict[str, dict[str, str]] = {
+    "budget": {"max_frames": "max_keyframes"},
+}
+"""Config fields earlier versions wrote under another name, per section: old -> new.
+:meth:`PipelineConfig.from_stored` (``run.json``) and :func:`dcseg.options.from_stored` (a
+job's stored options) read them under the new name. Listed in ``CHANGELOG.md``."""
+
+
+def renamed(data: Mapping[str, Any], renames: Mapping[str, Mapping[str, str]]) -> dict[str, Any]:
+    """``data`` with the keys of each section renamed by ``renames`` (see
+    :data:`RENAMED_KEYS`); a key already present under its new name wins."""
+    out = dict(data)
+    for section, names in renames.items():
+        part = out.get(section)
+        if isinstance(part, Mapping):
+            moved = {names.get(k, k): v for k, v in part.items() if k in names}
+            out[section] = {**moved, **{k: v for k, v in part.items() if k not in names}}
+    return out
 
 
 _STAGES: dict[str, type[Any]] = {

@@ -27,11 +27,13 @@ from pydantic import BaseModel, Field, ValidationError
 from dcseg.affinity.config import AffinityConfig
 from dcseg.assign.config import AssignConfig
 from dcseg.config import (
+    RENAMED_KEYS,
     CaptureOptions,
     FrameBudget,
     JobConfig,
     PipelineConfig,
     preset,
+    renamed,
 )
 from dcseg.errors import InputError, Problem
 from dcseg.option_models import Member, Strict, settable, values_model
@@ -198,7 +200,7 @@ def parse_options(data: Mapping[str, Any] | None) -> JobOptions:
 
 def from_stored(config: Mapping[str, Any]) -> JobConfig:
     """The config of a stored job config ``{"preset": ..., "options": {...}}``."""
-    options = parse_options(config.get("options"))
+    options = parse_options(renamed(config.get("options") or {}, RENAMED_KEYS))
     return build_config(str(config.get("preset", "fast")), options)
 
 

@@ -132,7 +132,7 @@ def _help(cls: type[Any], f: dataclasses.Field[Any]) -> str:
 
 def flags() -> dict[str, str]:
     """The flag of each job option the CLI sets (named in error messages), e.g.
-    ``{"budget.max_frames": "--keyframes"}``."""
+    ``{"budget.max_keyframes": "--max-keyframes"}``."""
     named: dict[str, str] = {}
     for group, members in GROUPS.items():
         for key, (cls, name) in members.items():

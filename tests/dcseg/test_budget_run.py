@@ -42,7 +42,7 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def run_dir(scene: Path) -> Path:
     out = scene.parent / "run"
-    budget = FrameBudget(max_side=80, max_frames=4)
+    budget = FrameBudget(max_side=80, max_keyframes=4)
     run_job(RunInputs.from_bundle(scene), JobConfig(tiny_config(budget)), out)
     return out
 
@@ -96,7 +96,7 @@ def test_cli_flags_override_the_preset_budget(
     caplog.set_level(logging.INFO, logger="dcseg.cli.reconstruct")
     out = tmp_path / "rec"
     args = ["reconstruct", str(scene), "--out", str(out), "--iterations", "2", "--holdout", "0"]
-    assert main([*args, "--max-side", "native", "--keyframes", "2"]) == 0
+    assert main([*args, "--max-side", "native", "--max-keyframes", "2"]) == 0
     capture = json.loads((out / "reconstruction.json").read_text())["capture"]
     assert capture["size"] == [160, 120] and capture["kept"] == 2
     assert capture["budget"]["max_side"] is None
@@ -106,8 +106,8 @@ def test_cli_flags_override_the_preset_budget(
     assert report["config"]["iterations"] == 2
     assert "reconstruct.iterations" not in report["size_rules"]["values"]
     assert "size rules at 2 views of 19200 px: the presets' values" in caplog.text
-    with pytest.raises(SystemExit, match=r"--keyframes \(options.budget.max_frames\)"):
-        main([*args, "--keyframes", "none"])
+    with pytest.raises(SystemExit, match=r"--max-keyframes \(options.budget.max_keyframes\)"):
+        main([*args, "--max-keyframes", "none"])
 
 
 def test_the_worker_stage_keys_include_the_budget() -> None:

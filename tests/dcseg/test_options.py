@@ -142,6 +142,13 @@ def test_stored_options_rebuild_the_same_configs():
     assert stored["reconstruct"] == {"iterations": 9}
 
 
+def test_options_stored_under_an_earlier_name_rebuild_under_the_new_one():
+    old = {"preset": "fast", "options": {"budget": {"max_frames": "all"}}}
+    assert from_stored(old).pipeline.budget.max_keyframes is None
+    with pytest.raises(InputError, match="options.budget.max_frames"):
+        parse_options({"budget": {"max_frames": "all"}})  # submissions use the new name
+
+
 def test_every_bad_field_is_named():
     with pytest.raises(InputError) as caught:
         parse_options(
@@ -194,10 +201,10 @@ def test_budget_defaults_are_the_preset_and_words_lift_the_caps(name):
     assert cfg.budget == BUDGET_PRESETS[name]
     lifted = build_config(name, parse_options({"budget": {"max_side": "native"}})).pipeline
     assert lifted.budget.max_side is None
-    assert lifted.budget.max_frames == BUDGET_PRESETS[name].max_frames
-    options = parse_options({"budget": {"max_frames": "all", "min_rotation_deg": 0}})
-    assert build_config(name, options).pipeline.budget.max_frames is None
-    assert options.stored()["budget"] == {"max_frames": "all", "min_rotation_deg": 0}
+    assert lifted.budget.max_keyframes == BUDGET_PRESETS[name].max_keyframes
+    options = parse_options({"budget": {"max_keyframes": "all", "min_rotation_deg": 0}})
+    assert build_config(name, options).pipeline.budget.max_keyframes is None
+    assert options.stored()["budget"] == {"max_keyframes": "all", "min_rotation_deg": 0}
 
 
 @pytest.mark.parametrize(
@@ -207,8 +214,8 @@ def test_budget_defaults_are_the_preset_and_words_lift_the_caps(name):
         ("max_side", 10**6),
         ("max_side", "big"),
         ("max_side", True),
-        ("max_frames", 0),
-        ("max_frames", "none"),
+        ("max_keyframes", 0),
+        ("max_keyframes", "none"),
         ("min_translation", -1.0),
         ("min_rotation_deg", 181.0),
     ],

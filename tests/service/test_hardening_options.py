@@ -40,7 +40,7 @@ def _paths(response: Any) -> list[str]:
         ({"capture": {"stride": 0}}, "options.capture.stride"),
         ({"budget": {"max_side": 4}}, "options.budget.max_side"),
         ({"budget": {"max_side": "huge"}}, "options.budget.max_side"),
-        ({"budget": {"max_frames": 10**9}}, "options.budget.max_frames"),
+        ({"budget": {"max_keyframes": 10**9}}, "options.budget.max_keyframes"),
         ({"budget": {"min_rotation_deg": 720}}, "options.budget.min_rotation_deg"),
     ],
 )
@@ -117,7 +117,7 @@ def test_in_flight_idempotency_window_is_a_setting(tmp_path):
     (shorter than validating a large upload); the window is DCSEG_IDEMPOTENCY_IN_FLIGHT_S."""
     from datetime import timedelta
 
-    from service.store import Store
+    from jobstore.store import Store
 
     store = Store(f"sqlite:///{tmp_path / 'db.sqlite'}")
     store.init_schema()
@@ -135,7 +135,7 @@ def test_time_limit_settings_must_fit_together():
     up to 9.25 h against a 6 h soft limit), and soft < hard < visibility timeout."""
     from pydantic import ValidationError
 
-    from service.settings import Settings
+    from jobstore.settings import Settings
 
     defaults = Settings()
     assert sum(defaults.stage_time_limit_s.values()) <= defaults.task_soft_time_limit_s

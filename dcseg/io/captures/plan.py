@@ -12,7 +12,7 @@ listed (after ``stride``/``max_frames``), before any image is decoded:
    camera moved at least ``min_translation`` metres or turned at least ``min_rotation_deg``
    degrees since the last keyframe (frames whose pose is not finite are kept, so that reading
    them reports the problem).
-3. **Cap.** When more than ``max_frames`` keyframes remain, ``max_frames`` of them are kept,
+3. **Cap.** When more than ``max_keyframes`` keyframes remain, ``max_keyframes`` of them are kept,
    evenly spaced over the sequence (the first and the last are always among them).
 """
 
@@ -56,7 +56,7 @@ class CapturePlan:
         size: ``(width, height)`` the frames are read and trained at.
         factor: the integer downscale factor between the two (1 = native).
         listed: the names of every frame the capture lists (after ``stride``/``max_frames``).
-        moved: how many frames the motion rule kept (before the ``max_frames`` cap).
+        moved: how many frames the motion rule kept (before the ``max_keyframes`` cap).
         frames: indices into ``listed`` of the frames read, in capture order.
     """
 
@@ -82,7 +82,7 @@ class CapturePlan:
         """One line for people, e.g. ``training at 600x340 (1200x680 / 2, ...); 60 of 60 ...``."""
         (w, h), (ow, oh), b = self.size, self.output_size, self.budget
         side = "native" if b.max_side is None else f"longer side <= {b.max_side}"
-        cap = "no cap" if b.max_frames is None else f"at most {b.max_frames}"
+        cap = "no cap" if b.max_keyframes is None else f"at most {b.max_keyframes}"
         return (
             f"training at {w}x{h} ({ow}x{oh} / {self.factor}, {side}); "
             f"{len(self.frames)} of {len(self.listed)} frames ({self.moved} moved "
@@ -101,7 +101,7 @@ class CapturePlan:
             "kept": len(self.frames),
             "budget": {
                 "max_side": self.budget.max_side,
-                "max_frames": self.budget.max_frames,
+                "max_keyframes": self.budget.max_keyframes,
                 "min_translation": self.budget.min_translation,
                 "min_rotation_deg": self.budget.min_rotation_deg,
             },
@@ -142,8 +142,8 @@ def keyframes(c2w: NDArray[np.float64], budget: FrameBudget) -> tuple[list[int],
         if _moved(c2w[kept[-1]], c2w[i], budget):
             kept.append(i)
     moved = len(kept)
-    if budget.max_frames is not None and moved > budget.max_frames:
-        picks = np.round(np.linspace(0, moved - 1, budget.max_frames)).astype(np.int64)
+    if budget.max_keyframes is not None and moved > budget.max_keyframes:
+        picks = np.round(np.linspace(0, moved - 1, budget.max_keyframes)).astype(np.int64)
         kept = [kept[int(p)] for p in picks]
     return kept, moved
 

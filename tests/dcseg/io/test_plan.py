@@ -62,7 +62,7 @@ def test_the_smallest_integer_factor_fits_the_longer_side(size, max_side, factor
 
 
 def test_keyframes_follow_translation_and_rotation():
-    budget = FrameBudget(max_frames=None, min_translation=0.01, min_rotation_deg=1.0)
+    budget = FrameBudget(max_keyframes=None, min_translation=0.01, min_rotation_deg=1.0)
     # 4 mm per frame: a keyframe every third frame (12 mm); 0.6 deg: every second (1.2 deg)
     walking, moved = keyframes(poses([(0.004, 0.0)] * 9), budget)
     assert walking == [0, 3, 6, 9] and moved == 4
@@ -82,7 +82,7 @@ def test_a_frame_whose_pose_is_not_finite_is_kept_so_reading_reports_it():
 
 def test_the_cap_keeps_evenly_spaced_keyframes_first_and_last_included():
     c2w = poses([(0.05, 0.0)] * 99)
-    plan = plan_capture(meta(c2w), replace(FAST, max_frames=10))
+    plan = plan_capture(meta(c2w), replace(FAST, max_keyframes=10))
     assert plan.moved == 100 and len(plan.frames) == 10
     assert plan.frames[0] == 0 and plan.frames[-1] == 99
     gaps = np.diff(plan.frames)
@@ -91,7 +91,7 @@ def test_the_cap_keeps_evenly_spaced_keyframes_first_and_last_included():
 
 
 def test_native_and_all_lift_both_caps():
-    options = parse_options({"budget": {"max_side": "native", "max_frames": "all"}})
+    options = parse_options({"budget": {"max_side": "native", "max_keyframes": "all"}})
     budget = build_config("fast", options).pipeline.budget
     plan = plan_capture(meta(poses([(0.05, 0.0)] * 299)), budget)
     assert (plan.factor, len(plan.frames)) == (1, 300)
@@ -106,7 +106,7 @@ def test_describe_and_summary_state_the_choice():
     assert "outputs at 1200x680" in text
     summary = plan.summary()
     assert summary["size"] == [600, 340] and summary["output_size"] == [1200, 680]
-    assert summary["kept"] == 60 and summary["budget"]["max_frames"] == 200
+    assert summary["kept"] == 60 and summary["budget"]["max_keyframes"] == 200
     assert summary["frames"] == list(plan.names)
 
 
@@ -146,7 +146,9 @@ def test_only_the_planned_frames_are_read_at_the_working_size(tmp_path: Path, mo
         return original(path, where)
 
     monkeypatch.setattr(common, "read_colour", counting)
-    capture, plan = read_planned(root, CaptureOptions(), replace(FAST, max_side=80, max_frames=3))
+    capture, plan = read_planned(
+        root, CaptureOptions(), replace(FAST, max_side=80, max_keyframes=3)
+    )
     assert plan.names == ("000", "002", "003") and plan.moved == 4
     assert capture.names == plan.names and len(decoded) == 3
     frame = capture.frames[0]

@@ -15,7 +15,7 @@ import pytest
 from plyfile import PlyData
 
 from service.main import create_app
-from tests.dcseg.export.runs import make_run
+from tests.scenes.runs import make_run
 from tests.service.conftest import AUTH_A, TAR, TestClient, assert_problem, make_settings
 from tests.service.segmented import run_segmented_job
 

@@ -19,7 +19,7 @@ from service.deps import AppState
 from service.main import create_app
 from tests.dcseg.viewer.browser import browser as browser
 from tests.dcseg.viewer.browser import wait_loaded
-from tests.dcseg.viewer.scene import write_labelled_run
+from tests.scenes.labelled import write_labelled_run
 from tests.service.conftest import AUTH_A, KEY_A, assert_problem, free_port, wait_for
 from tests.worker.fakes import FakeStage
 from worker.execute import execute_job

@@ -1,4 +1,4 @@
-"""One finished run per test module, written in code (see :mod:`tests.dcseg.export.runs`)."""
+"""One finished run per test module, written in code (see :mod:`tests.scenes.runs`)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.dcseg.export.runs import make_run
+from tests.scenes.runs import make_run
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from dcseg.export import ExportOptions, export_run
 from dcseg.export.appearance import palette_colours
 from dcseg.export.splat_file import read_splat
 from dcseg.io.splat_table import SH_C0, read_splat_table
-from tests.dcseg.export.runs import BOX, FLOOR_LEFT
+from tests.scenes.runs import BOX, FLOOR_LEFT
 
 
 def _sorted_rows(means: np.ndarray) -> np.ndarray:

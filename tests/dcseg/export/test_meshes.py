@@ -17,8 +17,8 @@ from dcseg.export.depth import run_views
 from dcseg.export.surface import extract
 from dcseg.export.tsdf import fuse
 from dcseg.io.captures.manifest import write_capture
-from tests.dcseg.export.runs import BOX, CLASSES, FLOOR_LEFT, FLOOR_RIGHT
 from tests.dcseg.reconstruct.scene import BOX_HI, make_capture, surface_distance
+from tests.scenes.runs import BOX, CLASSES, FLOOR_LEFT, FLOOR_RIGHT
 
 OPTIONS = ExportOptions(voxel_size=0.025, max_faces=1500)
 Y_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)

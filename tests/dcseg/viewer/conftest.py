@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from tests.dcseg.viewer.browser import browser as browser
-from tests.dcseg.viewer.scene import LabelledRun, write_labelled_run
+from tests.scenes.labelled import LabelledRun, write_labelled_run
 
 
 @pytest.fixture(scope="session")

@@ -17,7 +17,7 @@ from dcseg.cli import main
 from dcseg.errors import InputError
 from dcseg.viewer import CONTENT_SECURITY_POLICY, ViewerConfig, ViewerFiles, render_page
 from dcseg.viewer.server import check_run, serving
-from tests.dcseg.viewer.scene import LabelledRun
+from tests.scenes.labelled import LabelledRun
 
 pytestmark = pytest.mark.usefixtures("built")
 

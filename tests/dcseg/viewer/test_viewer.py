@@ -11,7 +11,7 @@ from dcseg.io.exports import palette
 from dcseg.io.ply import read_gaussians_ply, read_ply_extra
 from dcseg.viewer.server import serving
 from tests.dcseg.viewer.browser import open_viewer, settled, viewer_call
-from tests.dcseg.viewer.scene import LabelledRun
+from tests.scenes.labelled import LabelledRun
 
 BOX, BALL, FLOOR = 2, 3, 1
 

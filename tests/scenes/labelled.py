@@ -1,4 +1,5 @@
-"""A small labelled run written in code: a floor and two objects above it, plus noise."""
+"""A small labelled run written in code: a floor and two objects above it, plus noise (what the
+viewer shows: ``scene_labelled.ply``, ``instances.json``, ``labels.json``)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dcseg.gaussians import SH_C0, Gaussians
-from dcseg.io.exports import instance_records, write_instances_json, write_labels_json
+from dcseg.gaussians import SH_C0
 from dcseg.io.ply import write_gaussians_ply
 from dcseg.types import Vocabulary
+from tests.scenes.gaussians import gaussians_at
+from tests.scenes.runs import write_objects
 
 VOCABULARY = Vocabulary(("wall", "floor", "box", "ball"))
 """Class ids differ from instance ids, so the two colourings differ; "wall" is absent."""
@@ -65,19 +67,15 @@ def write_labelled_run(folder: Path, seed: int = 0) -> LabelledRun:
     semantic = np.where(clusters >= 0, classes[np.maximum(clusters, 0)], -1)
     rgb = np.concatenate([np.tile(p.rgb, (p.count, 1)) for p in PARTS] + [np.full((NOISE, 3), 0.9)])
     n = len(means)
-    gaussians = Gaussians(
-        means=torch.from_numpy(means),
-        quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1),
-        log_scales=torch.full((n, 3), float(np.log(0.025))),
-        opacity_logits=torch.full((n,), 3.0),
-        sh=torch.from_numpy(((rgb - 0.5) / SH_C0).astype(np.float32)).reshape(n, 1, 3),
+    gaussians = gaussians_at(
+        torch.from_numpy(means),
+        torch.full((n, 3), float(np.log(0.025))),
+        torch.full((n,), 3.0),
+        torch.from_numpy(((rgb - 0.5) / SH_C0).astype(np.float32)).reshape(n, 1, 3),
     )
     folder.mkdir(parents=True, exist_ok=True)
     instance_ids = np.where(clusters >= 0, clusters + 1, -1)
     extra = {"instance_id": instance_ids, "semantic_id": semantic}
     write_gaussians_ply(folder / "scene_labelled.ply", gaussians, extra=extra)
-    scores, views = np.array([0.9, 0.8, 0.7]), np.array([5, 4, 3])
-    records = instance_records(means, clusters, classes, scores, views, VOCABULARY)
-    write_instances_json(folder / "instances.json", records, folder / "scene_labelled.ply")
-    write_labels_json(folder / "labels.json", VOCABULARY)
+    write_objects(folder, folder / "scene_labelled.ply", means, clusters, classes, VOCABULARY)
     return LabelledRun(folder, means, instance_ids)

@@ -1,5 +1,6 @@
-"""A finished run written in code: the analytic box-on-a-floor scene of the reconstruction
-tests, its Gaussians back-projected from the depth and labelled by construction.
+"""A finished run written in code: the analytic box-on-a-floor scene (:mod:`tests.scenes.analytic`),
+its Gaussians back-projected from the depth and labelled by construction. numpy only (no torch):
+the service's export tests use it too.
 
 Objects: 1 = the box (class ``box``), 2 and 3 = the floor's halves x < 0 and x >= 0 (class
 ``floor``); floor Gaussians with |y| > 0.8 belong to no object. The run's ``state/`` holds the
@@ -85,6 +86,22 @@ def write_state(run: Path, capture: Capture) -> None:
     (run / "state" / "views.json").write_text(json.dumps(body), encoding="utf-8")
 
 
+def write_objects(
+    run: Path,
+    ply: Path,
+    means: NDArray[np.floating],
+    cluster: NDArray[np.integer],
+    classes: NDArray[np.integer],
+    vocabulary: Vocabulary,
+) -> None:
+    """``instances.json`` and ``labels.json`` of three objects: cluster ``k`` is object ``k + 1``
+    of class ``classes[k]`` (scores 0.9, 0.8, 0.7; seen in 5, 4, 3 views)."""
+    scores, views = np.array([0.9, 0.8, 0.7]), np.array([5, 4, 3])
+    records = instance_records(means, cluster, classes, scores, views, vocabulary)
+    write_instances_json(run / "instances.json", records, ply)
+    write_labels_json(run / "labels.json", vocabulary)
+
+
 def make_run(
     run: Path, frames: int = 8, size: tuple[int, int] = (64, 48), sh_degree: int = 1, seed: int = 0
 ) -> Path:
@@ -97,13 +114,7 @@ def make_run(
     write_splat_table(ply, splats)
     ids = splats.ints["instance_id"]
     cluster = np.where(ids > 0, ids - 1, -1)
-    vocabulary = Vocabulary(CLASSES)
-    records = instance_records(
-        points, cluster, np.array([0, 1, 1]), np.array([0.9, 0.8, 0.7]), np.array([5, 4, 3]),
-        vocabulary,
-    )  # fmt: skip
-    write_instances_json(run / "instances.json", records, ply)
-    write_labels_json(run / "labels.json", vocabulary)
+    write_objects(run, ply, points, cluster, np.array([0, 1, 1]), Vocabulary(CLASSES))
     write_state(run, capture)
     record = {"inputs": {"capture": str(run.parent / "no-such-capture")}, "counts": {}}
     (run / "run.json").write_text(json.dumps(record), encoding="utf-8")

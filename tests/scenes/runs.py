@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from dcseg.io.exports import instance_records, write_instances_json, write_labels_json
 from dcseg.io.splat_table import SH_C0, SplatTable, write_splat_table
 from dcseg.types import Capture, Vocabulary
-from tests.dcseg.reconstruct.scene import BOX_HI, BOX_LO, make_capture
+from tests.scenes.analytic import BOX_HI, BOX_LO, make_capture
 
 CLASSES = ("box", "floor")
 BOX, FLOOR_LEFT, FLOOR_RIGHT = 1, 2, 3

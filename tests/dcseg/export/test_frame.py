@@ -10,7 +10,7 @@ import pytest
 
 from dcseg.export import export_run
 from dcseg.export.frame import describe_frame, estimate_up, rotation_to_y_up, snap_axis
-from tests.dcseg.reconstruct.scene import look_at
+from tests.scenes.analytic import look_at
 
 
 def _orbit(up_tilt: float = 0.0) -> np.ndarray:

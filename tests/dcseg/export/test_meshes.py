@@ -17,7 +17,7 @@ from dcseg.export.depth import run_views
 from dcseg.export.surface import extract
 from dcseg.export.tsdf import fuse
 from dcseg.io.captures.manifest import write_capture
-from tests.dcseg.reconstruct.scene import BOX_HI, make_capture, surface_distance
+from tests.scenes.analytic import BOX_HI, make_capture, surface_distance
 from tests.scenes.runs import BOX, CLASSES, FLOOR_LEFT, FLOOR_RIGHT
 
 OPTIONS = ExportOptions(voxel_size=0.025, max_faces=1500)

@@ -17,7 +17,7 @@ from dcseg.io.captures.plan import CaptureMeta, plan_capture
 from dcseg.io.ply import read_gaussians_ply
 from dcseg.io.poses import read_poses
 from dcseg.reconstruct.config import REFINE_POSES, SURFACE_PRIORS
-from tests.dcseg.reconstruct.scene import make_capture
+from tests.scenes.analytic import make_capture
 
 
 def planned_reader(seen: list[CaptureOptions], budgets: list[FrameBudget]) -> Any:

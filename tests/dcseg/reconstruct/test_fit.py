@@ -11,7 +11,7 @@ import torch
 from dcseg.reconstruct import Reconstruction, fit_gaussians
 from dcseg.reconstruct.config import FAST, ReconstructConfig
 from dcseg.reconstruct.fit import means_lr
-from tests.dcseg.reconstruct.scene import make_capture
+from tests.scenes.analytic import make_capture
 
 TINY = replace(
     FAST,

@@ -18,7 +18,7 @@ from dcseg.reconstruct.init import (
     voxel_downsample,
     voxel_keys,
 )
-from tests.dcseg.reconstruct.scene import make_capture, surface_distance
+from tests.scenes.analytic import make_capture, surface_distance
 
 
 @pytest.fixture(scope="module")

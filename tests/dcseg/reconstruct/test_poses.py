@@ -27,7 +27,7 @@ from dcseg.reconstruct.poses import (
 )
 from dcseg.reconstruct.views import View, make_view
 from dcseg.render import Camera, render
-from tests.dcseg.reconstruct.scene import make_capture
+from tests.scenes.analytic import make_capture
 
 DELTA = torch.tensor([0.02, -0.015, 0.01, 0.03, -0.02, 0.01], dtype=torch.float64)
 

@@ -20,7 +20,7 @@ from dcseg.reconstruct.surface import centre_depth_grad, disc_frames, thickness_
 from dcseg.reconstruct.views import make_view
 from dcseg.render import Camera
 from dcseg.render.projection import scaled_rotations
-from tests.dcseg.reconstruct.scene import make_capture, surface_distance
+from tests.scenes.analytic import make_capture, surface_distance
 
 
 def _rotations(quats: np.ndarray) -> torch.Tensor:

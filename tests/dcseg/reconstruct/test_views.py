@@ -10,7 +10,7 @@ from dcseg.reconstruct.config import FAST, ReconstructConfig
 from dcseg.reconstruct.init import init_from_capture
 from dcseg.reconstruct.views import make_view, random_crop
 from dcseg.render import render
-from tests.dcseg.reconstruct.scene import make_capture
+from tests.scenes.analytic import make_capture
 
 
 def test_window_renders_the_crop_of_the_whole_view() -> None:

@@ -197,7 +197,7 @@ def baselines(saved: SavedRun, scorer: Scorer, cfg: PipelineConfig) -> dict[str,
 
 def overridden(cfg: PipelineConfig, overrides: Sequence[str]) -> PipelineConfig:
     """``cfg`` with ``section.field=JSON`` overrides (``assign.complete=false``, ``scale=0.5``);
-    a value that is not JSON is a string (``assign.maps_from=clusters``)."""
+    a value that is not JSON is a string (``assign.label_maps=clusters``)."""
     for item in overrides:
         key, value = key_value(item)
         section, _, name = key.rpartition(".")
@@ -473,7 +473,7 @@ def parser() -> argparse.ArgumentParser:
         metavar="KEY=JSON",
         help="overrides for ablations (with --train also of training: reconstruct, cache, "
         "affinity), e.g. assign.complete=false scale=0.5 "
-        "assign.maps_from=clusters",
+        "assign.label_maps=clusters",
     )
     p.add_argument(
         "--synth",

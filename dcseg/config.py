@@ -306,6 +306,7 @@ in the same change."""
 
 RENAMED_KEYS: dict[str, dict[str, str]] = {
     "budget": {"max_frames": "max_keyframes"},
+    "assign": {"mode": "matcher", "maps_from": "label_maps"},
 }
 """Config fields earlier versions wrote under another name, per section: old -> new.
 :meth:`PipelineConfig.from_stored` (``run.json``) and :func:`dcseg.options.from_stored` (a

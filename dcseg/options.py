@@ -46,9 +46,9 @@ PRESET_NAMES: tuple[str, ...] = typing.get_args(PresetName)
 
 SEGMENT_OPTIONS: dict[str, Member] = {
     "scale": (PipelineConfig, "scale"),
-    "matcher": (AssignConfig, "mode"),
+    "matcher": (AssignConfig, "matcher"),
     "seed": (PipelineConfig, "seed"),
-    "label_maps": (AssignConfig, "maps_from"),
+    "label_maps": (AssignConfig, "label_maps"),
 }
 """The ``segment`` options: the fields of the segmentation a job sets directly."""
 
@@ -127,7 +127,7 @@ def build_config(preset_name: str | PipelineConfig, options: JobOptions) -> JobC
     seg = group(options, "segment").model_dump(exclude_unset=stored)
     reconstruct = _replace(base.reconstruct, options.reconstruct, "options.reconstruct")
     affinity = _replace(base.affinity, options.affinity, "options.affinity")
-    assign = {"mode": seg.get("matcher"), "maps_from": seg.get("label_maps")}
+    assign = {"matcher": seg.get("matcher"), "label_maps": seg.get("label_maps")}
     try:
         cfg = dataclasses.replace(
             base,

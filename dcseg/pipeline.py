@@ -29,19 +29,13 @@ from dcseg.evaluate.stage import evaluate_scenes
 from dcseg.evaluate.views import vote_views
 from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
+from dcseg.progress import Progress, quiet, steps
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
 from dcseg.segment import EvidenceSum, label_map
 from dcseg.segment.views import cluster_maps, final_maps
 from dcseg.segmentation import Labels, Segmentation
 from dcseg.types import AgnosticMasks, Capture, GroundTruth, SemanticMap, Vocabulary
-
-Progress = Callable[[str, float, str], None]
-"""``on_progress(stage, fraction, message)``."""
-
-
-def _quiet(stage: str, fraction: float, message: str) -> None:
-    return None
 
 
 @dataclass(frozen=True)
@@ -57,7 +51,7 @@ def build_views(
     gaussians: Gaussians,
     capture: Capture,
     cfg: CacheConfig,
-    on_progress: Progress = _quiet,
+    on_progress: Progress = quiet,
     folder: Path | None = None,
 ) -> tuple[ViewState, ...]:
     """The blending-weight cache of every frame of the capture.
@@ -93,7 +87,7 @@ def train_scene(
     capture: Capture,
     agnostic: Mapping[str, AgnosticMasks],
     cfg: PipelineConfig,
-    on_progress: Progress = _quiet,
+    on_progress: Progress = quiet,
     cache_dir: Path | None = None,
 ) -> TrainedScene:
     """Cache blending weights per view and train affinity features on the frozen Gaussians.
@@ -112,11 +106,9 @@ def train_scene(
     inputs = [
         AffinityView(v.name, _loader(v), agnostic.get(v.name), depth[v.name], v.K) for v in views
     ]
-
-    def report(step: int, total: int, loss: float) -> None:
-        on_progress("affinity", step / total, f"step {step}/{total} loss {loss:.4f}")
-
-    affinity = train_affinity(frozen, inputs, cfg.affinity, on_progress=report)
+    affinity = train_affinity(
+        frozen, inputs, cfg.affinity, on_progress=steps(on_progress, "affinity")
+    )
     return TrainedScene(frozen, affinity, views)
 
 
@@ -130,7 +122,7 @@ def segment_scene(
     semantic: Mapping[str, SemanticMap],
     n_classes: int,
     cfg: PipelineConfig,
-    on_progress: Progress = _quiet,
+    on_progress: Progress = quiet,
     class_names: Sequence[str] = (),
 ) -> Segmentation:
     """Cluster at ``cfg.scale``, render cluster maps, label clusters, and build objects.
@@ -144,7 +136,7 @@ def segment_scene(
     those of the first maps. Then unlabelled clusters adopt a touching labelled neighbour's
     class, unlabelled Gaussians on labelled surfaces are completed, and clusters become
     object instances (:mod:`dcseg.assign.objects`; ``class_names`` names the vocabulary, so
-    that ``cfg.assign.stuff_classes`` can be found in it). With ``cfg.assign.maps_from ==
+    that ``cfg.assign.stuff_classes`` can be found in it). With ``cfg.assign.label_maps ==
     "gaussians"`` the label maps are rendered from the Gaussians' final classes (those of
     ``semantic_ids``), in the same pass over the views as the second cluster maps; with
     ``"clusters"`` they are the cluster maps through each cluster's class.
@@ -191,7 +183,7 @@ def segment_scene(
         means, radius, evidence, clustering, assignment, semantic_ids, a, stuff
     )
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
-    if a.maps_from == "gaussians":
+    if a.label_maps == "gaussians":
         maps, label_maps = final_maps(
             trained.views, clustering.labels if refine else None, maps, semantic_ids, cfg.masks,
             a.filter_label_maps, on_progress,

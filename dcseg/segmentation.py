@@ -42,7 +42,7 @@ class Segmentation:
         semantic_ids: ``[N]`` class per Gaussian after label completion, -1 = none.
         cluster_maps: per view name, ``[H, W]`` cluster per pixel (-1 = none), cleaned.
         label_maps: per view name, ``[H, W]`` class per pixel (-1 = none): rendered from
-            ``semantic_ids`` or from the cluster maps (``AssignConfig.maps_from``).
+            ``semantic_ids`` or from the cluster maps (``AssignConfig.label_maps``).
         mask_agreement: how well the class-aware masks agree with the labelled clusters
             (:func:`~dcseg.assign.consistency.mask_agreement`), NaN when not measured.
         evidence_trusted: whether it reached ``AssignConfig.trust_agreement``, so that the

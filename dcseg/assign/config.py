@@ -7,8 +7,8 @@ from typing import Literal
 
 from dcseg.fields import option
 
-AssignMode = Literal["assignment", "matching"]
-MapsFrom = Literal["gaussians", "clusters"]
+Matcher = Literal["assignment", "matching"]
+LabelMaps = Literal["gaussians", "clusters"]
 
 
 @dataclass(frozen=True)
@@ -16,7 +16,7 @@ class AssignConfig:
     """How clusters get class labels from per-view class-aware 2D masks (method doc §6, B.7).
 
     Attributes:
-        mode: ``"assignment"`` (each class may take up to ``replicas`` clusters per view; the
+        matcher: ``"assignment"`` (each class may take up to ``replicas`` clusters per view; the
             paper's best variant) or ``"matching"`` (one-to-one; the ablation).
         replicas: class replicas per view in ``"assignment"`` mode: a fixed count (paper: 3)
             or ``"components"`` = the number of connected components of the class's mask in
@@ -174,7 +174,7 @@ class AssignConfig:
             floor and its instance falls below IoU 0.5). 1.0 is the 3D vote wherever there
             is evidence (layout 0 3D 90.1); moving only Gaussians outside objects (and in
             stuff) kept the instance and lost the gains (91.4 / 90.3 / 93.2 at 0.9).
-        maps_from: what the rendered label maps (``labels/``) show: ``"gaussians"`` = per pixel
+        label_maps: what the rendered label maps (``labels/``) show: ``"gaussians"`` = per pixel
             the class with the largest blending weight summed over the Gaussians of that class,
             each Gaussian with its final class (after the consistency step, adoption of
             unlabelled clusters and label completion: the classes the PLY carries), so maps
@@ -191,7 +191,7 @@ class AssignConfig:
             36.58 / 36.58.
     """
 
-    mode: AssignMode = option(
+    matcher: Matcher = option(
         "assignment",
         choices=("assignment", "matching"),
         help="class replication (assignment) or one-to-one",
@@ -227,7 +227,7 @@ class AssignConfig:
     complete: bool = True
     completion_rounds: int = 3
     evidence_weight: float = 1.0
-    maps_from: MapsFrom = option(
+    label_maps: LabelMaps = option(
         "gaussians",
         choices=("gaussians", "clusters"),
         help="rendered label maps from the Gaussians' final classes (gaussians, as in the "
@@ -237,8 +237,8 @@ class AssignConfig:
     filter_label_maps: bool = False
 
     def __post_init__(self) -> None:
-        if self.mode not in ("assignment", "matching"):
-            raise ValueError(f"mode must be 'assignment' or 'matching', got {self.mode!r}")
+        if self.matcher not in ("assignment", "matching"):
+            raise ValueError(f"matcher must be 'assignment' or 'matching', got {self.matcher!r}")
         if self.replicas != "components" and not (
             isinstance(self.replicas, int) and self.replicas >= 1
         ):
@@ -255,8 +255,10 @@ class AssignConfig:
             )
         if self.min_area < 0:
             raise ValueError(f"min_area must be >= 0, got {self.min_area}")
-        if self.maps_from not in ("gaussians", "clusters"):
-            raise ValueError(f"maps_from must be 'gaussians' or 'clusters', got {self.maps_from!r}")
+        if self.label_maps not in ("gaussians", "clusters"):
+            raise ValueError(
+                f"label_maps must be 'gaussians' or 'clusters', got {self.label_maps!r}"
+            )
         self._check_objects()
 
     def _check_objects(self) -> None:

@@ -22,7 +22,7 @@ def class_replicas(
     ``"matching"`` mode: 1 each. ``"assignment"`` mode: ``cfg.replicas`` each, or ``counts``
     (per-class connected-component counts of the view) when ``cfg.replicas == "components"``.
     """
-    if cfg.mode == "matching":
+    if cfg.matcher == "matching":
         return np.ones(n_classes, dtype=np.int64)
     if cfg.replicas == "components":
         if counts is None:

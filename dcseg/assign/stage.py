@@ -59,7 +59,7 @@ def view_matches(
     """
     iou = mask_iou(cluster_ids, class_map, n_clusters, n_classes)
     counts = None
-    if cfg.mode == "assignment" and cfg.replicas == "components":
+    if cfg.matcher == "assignment" and cfg.replicas == "components":
         counts = component_counts(class_map, n_classes, cfg.min_area)
     return match_view(iou, cfg, counts=counts)
 

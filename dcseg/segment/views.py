@@ -9,13 +9,14 @@ refined cluster map and the label map (:func:`final_maps`). Both report each vie
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from dcseg.progress import Progress
 from dcseg.segment.config import MaskConfig
 from dcseg.segment.maps import cluster_map
 
@@ -29,7 +30,7 @@ def cluster_maps(
     views: Sequence[ViewState],
     cluster_labels: NDArray[np.int64],
     masks: MaskConfig,
-    on_progress: Callable[[str, float, str], None],
+    on_progress: Progress,
     evidence: EvidenceSum | None = None,
     semantic: Mapping[str, SemanticMap] | None = None,
     stage: str = "masks",
@@ -53,7 +54,7 @@ def final_maps(
     semantic_ids: NDArray[np.int64],
     masks: MaskConfig,
     filter_label_maps: bool,
-    on_progress: Callable[[str, float, str], None],
+    on_progress: Progress,
 ) -> tuple[dict[str, NDArray[np.int32]], dict[str, NDArray[np.int32]]]:
     """Cluster maps (rendered again when ``cluster_labels`` is given, else ``maps``) and label
     maps rendered from the Gaussians' final classes, in one pass over the views' weights.

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import typing
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -34,7 +35,7 @@ from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.sizes import SCALED, SceneSize, resolve
 
 
-def declared(stage: type, key: str) -> dict[str, object]:
+def declared(stage: type, key: str) -> dict[str, Any]:
     """Each field's ``key`` declaration (:func:`dcseg.fields.option`), where it has one."""
     return {f.name: f.metadata[key] for f in dataclasses.fields(stage) if f.metadata.get(key)}
 
@@ -105,14 +106,14 @@ def test_segment_options_seed_every_stage_and_set_scale_and_matcher():
     assert cfg == dataclasses.replace(
         preset("paper").seeded(7),
         scale=0.5,
-        assign=dataclasses.replace(preset("paper").assign, mode="matching"),
+        assign=dataclasses.replace(preset("paper").assign, matcher="matching"),
     )
 
 
 def test_segment_options_choose_what_the_label_maps_show():
     cfg = build_config("fast", parse_options({"segment": {"label_maps": "clusters"}})).pipeline
-    assert cfg.assign.maps_from == "clusters"
-    assert build_config("fast", JobOptions()).pipeline.assign.maps_from == "gaussians"
+    assert cfg.assign.label_maps == "clusters"
+    assert build_config("fast", JobOptions()).pipeline.assign.label_maps == "gaussians"
     with pytest.raises(InputError, match="label_maps"):
         parse_options({"segment": {"label_maps": "pixels"}})
 
@@ -123,7 +124,7 @@ def test_cli_label_maps_flag_reaches_the_config(tmp_path: Path, monkeypatch):
     def record(args):
         from dcseg.cli._pipeline import job_config
 
-        seen.append(job_config(args).pipeline.assign.maps_from)
+        seen.append(job_config(args).pipeline.assign.label_maps)
         return 0
 
     monkeypatch.setattr("dcseg.cli.run.run", record)

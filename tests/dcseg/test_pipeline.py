@@ -153,9 +153,9 @@ def test_recluster_reuses_training(
     # The derived run can itself be re-clustered.
     resegment(out, tmp_path / "fine", scale=0.2, matcher="matching", label_maps="clusters")
     fine = json.loads((tmp_path / "fine" / "run.json").read_text())
-    assert fine["config"]["assign"]["mode"] == "matching"
-    assert fine["config"]["assign"]["maps_from"] == "clusters"
-    assert record["config"]["assign"]["maps_from"] == "gaussians"
+    assert fine["config"]["assign"]["matcher"] == "matching"
+    assert fine["config"]["assign"]["label_maps"] == "clusters"
+    assert record["config"]["assign"]["label_maps"] == "gaussians"
 
 
 def test_reclassify_with_other_masks(
@@ -270,7 +270,7 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
         # alone, and its label maps are the cluster maps through each cluster's class
         assign = replace(
             base.assign, min_share_ratio=ratio, complete=False, objects=False,
-            maps_from="clusters", regroup_min_gaussians=regroup,
+            label_maps="clusters", regroup_min_gaussians=regroup,
         )  # fmt: skip
         return segment_scene(saved.trained, saved.semantic, n_classes, replace(base, assign=assign))
 
@@ -452,7 +452,7 @@ def test_segmentation_reads_each_view_twice(run_dir: Path, monkeypatch: pytest.M
     reads = counted_reads(monkeypatch)
     cfg = replace(tiny_config(), scale=0.5)
     result = segment_scene(trained, saved.semantic, len(saved.vocabulary), cfg)
-    assert result.label_maps and cfg.assign.maps_from == "gaussians"
+    assert result.label_maps and cfg.assign.label_maps == "gaussians"
     assert sorted(reads) == sorted(2 * [Path(str(v.source)) for v in views])
 
 

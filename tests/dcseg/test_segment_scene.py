@@ -61,9 +61,9 @@ def fixed_clusters(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr("dcseg.pipeline.cluster_features", clusters)
 
 
-def config(maps_from: str, **assign: Any) -> PipelineConfig:
+def config(label_maps: str, **assign: Any) -> PipelineConfig:
     cfg = preset("fast")
-    changes = {"objects": False, "maps_from": maps_from, **assign}
+    changes = {"objects": False, "label_maps": label_maps, **assign}
     return replace(cfg, assign=replace(cfg.assign, **changes))
 
 
@@ -102,16 +102,16 @@ def test_label_maps_follow_completion_without_the_consistency_step() -> None:
         assert np.array_equal(classes, label_map(seg.cluster_maps[name], seg.assignment.labels))
 
 
-def test_maps_from_is_checked() -> None:
-    with pytest.raises(ValueError, match="maps_from"):
-        replace(preset("fast").assign, maps_from="pixels")  # type: ignore[arg-type]
+def test_label_maps_is_checked() -> None:
+    with pytest.raises(ValueError, match="label_maps"):
+        replace(preset("fast").assign, label_maps="pixels")  # type: ignore[arg-type]
 
 
-@pytest.mark.parametrize("maps_from", ["gaussians", "clusters"])
-def test_per_view_maps_are_held_as_int32(maps_from: str) -> None:
+@pytest.mark.parametrize("label_maps", ["gaussians", "clusters"])
+def test_per_view_maps_are_held_as_int32(label_maps: str) -> None:
     """A run holds two maps per view; int32 halves what int64 would take (2.5 MB per map and
     view at 640x480)."""
-    seg = segment(config(maps_from))
+    seg = segment(config(label_maps))
     for maps in (seg.cluster_maps, seg.label_maps):
         assert {m.dtype for m in maps.values()} == {np.dtype(np.int32)}
     assert seg.instance_map("v0").tolist()[0][:6] == [0] * 6

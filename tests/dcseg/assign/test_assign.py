@@ -91,7 +91,7 @@ def test_assignment_lets_one_class_take_three_clusters() -> None:
 
 
 def test_matching_is_one_to_one() -> None:
-    assert match_view(IOU, AssignConfig(mode="matching")) == [(0, 0, 0.9), (1, 1, 0.1)]
+    assert match_view(IOU, AssignConfig(matcher="matching")) == [(0, 0, 0.9), (1, 1, 0.1)]
     assert match_view(IOU, AssignConfig(replicas=1)) == [(0, 0, 0.9), (1, 1, 0.1)]
 
 
@@ -99,7 +99,7 @@ def test_iou_floor_drops_weak_edges() -> None:
     iou = np.array([[0.04, 0.0], [0.5, 0.049]])
     assert match_view(iou, AssignConfig()) == [(1, 0, 0.5)]
     assert match_view(iou, AssignConfig(min_iou=0.01)) == [(0, 0, 0.04), (1, 0, 0.5)]
-    matching = AssignConfig(mode="matching", min_iou=0.01)
+    matching = AssignConfig(matcher="matching", min_iou=0.01)
     assert match_view(iou, matching) == [(0, 0, 0.04), (1, 1, 0.049)]
     assert match_view(np.zeros((3, 2)), AssignConfig()) == []
     assert match_view(np.zeros((0, 2)), AssignConfig()) == []
@@ -143,7 +143,7 @@ def test_assign_labels_assignment_vs_matching_vs_components() -> None:
     np.testing.assert_array_equal(result.labels, [0, 1, 0])
     np.testing.assert_allclose(result.votes, [[0.5, 0.0], [0.0, 1.0], [0.5, 0.0]])
     np.testing.assert_array_equal(result.n_views, [1, 1, 1])
-    matching = assign_labels([ids], [classes], 3, 2, AssignConfig(mode="matching", min_area=0))
+    matching = assign_labels([ids], [classes], 3, 2, AssignConfig(matcher="matching", min_area=0))
     assert matching.labels[1] == 1 and sorted(matching.labels[[0, 2]].tolist()) == [-1, 0]
     comps = assign_labels([ids], [classes], 3, 2, AssignConfig(replicas="components", min_area=0))
     np.testing.assert_array_equal(comps.labels, [0, 1, 0])
@@ -188,7 +188,7 @@ def test_assign_labels_exceptions() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"mode": "greedy"}, "mode"),
+        ({"matcher": "greedy"}, "matcher"),
         ({"replicas": 0}, "replicas"),
         ({"replicas": "instances"}, "replicas"),
         ({"min_iou": 0.0}, "min_iou"),

@@ -626,7 +626,7 @@ def rate_limit_check(server: Server, job_id: str, limit: int, burst: int) -> dic
 
 def rate_limit_url_known() -> bool:
     """Whether the service's settings have ``rate_limit_url`` (else the variable is ignored)."""
-    from service.settings import Settings
+    from jobstore.settings import Settings
 
     return "rate_limit_url" in Settings.model_fields
 

@@ -8,7 +8,7 @@ import re
 from dataclasses import dataclass
 from pathlib import PurePosixPath
 
-from service.blobstore import Storage, StoredFile
+from jobstore.blobstore import Storage, StoredFile
 from service.problems import ApiProblem
 
 MEDIA_TYPES = {

@@ -14,11 +14,11 @@ import redis
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from service.blobstore import Storage, make_storage
+from jobstore.blobstore import Storage, make_storage
+from jobstore.settings import Settings
+from jobstore.store import Store, hash_key
 from service.problems import ApiProblem
 from service.queue import JobQueue
-from service.settings import Settings
-from service.store import Store, hash_key
 
 logger = logging.getLogger(__name__)
 

@@ -35,11 +35,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, get_args
 
-from service.blobstore import Storage, StoredFile
+from jobstore.blobstore import Storage, StoredFile
+from jobstore.contract import JobPaths
+from jobstore.settings import Settings
 from service.export_child import RUN
 from service.schemas import ExportFormat
-from service.settings import Settings
-from worker.contract import JobPaths
 
 logger = logging.getLogger(__name__)
 

@@ -14,9 +14,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from jobstore.blobstore import Storage
+from jobstore.models import Job
 from service.artifacts import find_artifact
-from service.blobstore import Storage
-from service.models import Job
 from service.problems import ApiProblem
 
 INSTANCES = "segment/instances.json"

@@ -8,10 +8,10 @@ import json
 from datetime import datetime
 from typing import Any
 
-from service.models import Job
+from jobstore.models import Job
+from jobstore.store import Cursor
 from service.problems import ApiProblem
 from service.schemas import JobLinks, JobPublic, Progress
-from service.store import Cursor
 
 
 def job_url(job_id: str) -> str:

@@ -20,8 +20,10 @@ from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
 
 from dcseg import __version__
+from jobstore.blobstore import Storage, make_storage
+from jobstore.settings import Settings, get_settings
+from jobstore.store import Store
 from service import problems
-from service.blobstore import Storage, make_storage
 from service.deps import LOCAL_TENANT, AppState, make_limiter
 from service.exports import Exporter
 from service.queue import JobQueue, make_queue
@@ -36,8 +38,6 @@ from service.routes import (
     uploads,
     viewer,
 )
-from service.settings import Settings, get_settings
-from service.store import Store
 from service.uploads import remove_expired_uploads
 
 if TYPE_CHECKING:

@@ -10,12 +10,12 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
-from worker.contract import TASK_RUN_JOB, celery_config
+from jobstore.contract import TASK_RUN_JOB, celery_config
 
 if TYPE_CHECKING:
     from celery import Celery  # type: ignore[import-untyped]
 
-    from service.settings import Settings
+    from jobstore.settings import Settings
 
 logger = logging.getLogger(__name__)
 

@@ -26,12 +26,12 @@ import anyio
 import anyio.to_thread
 from fastapi.concurrency import run_in_threadpool
 
-from service.blobstore import Storage
-from service.models import utcnow
+from jobstore.blobstore import Storage
+from jobstore.contract import input_digests, input_layout
+from jobstore.models import utcnow
+from jobstore.settings import Settings
+from jobstore.store import Store, UploadInUse
 from service.problems import ApiProblem
-from service.settings import Settings
-from service.store import Store, UploadInUse
-from worker.contract import input_digests, input_layout
 
 if TYPE_CHECKING:
     from service.deps import AppState

@@ -1,7 +1,7 @@
 """The Celery app: ``celery -A worker.celery_app worker -Q gpu --concurrency 1``.
 
 The task is a thin adapter over :func:`worker.execute.execute_job`. Settings (see
-``worker.contract.celery_config``):
+``jobstore.contract.celery_config``):
 
 * ``task_acks_late`` + ``task_reject_on_worker_lost``: a job whose worker dies is redelivered;
   ``execute_job`` resumes after its last finished stage.
@@ -40,9 +40,9 @@ from celery.signals import (  # type: ignore[import-untyped]
     worker_shutting_down,
 )
 
-from service.settings import get_settings
-from service.store import Store
-from worker.contract import TASK_RUN_JOB, celery_config
+from jobstore.contract import TASK_RUN_JOB, celery_config
+from jobstore.settings import get_settings
+from jobstore.store import Store
 from worker.execute import execute_job
 from worker.local import StagesFactory, kill_this_process
 

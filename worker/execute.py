@@ -30,9 +30,9 @@ from types import TracebackType
 from typing import Any, Literal, Protocol
 
 from dcseg.progress import Progress
-from service.blobstore import Storage, make_storage
-from service.settings import Settings
-from service.store import Lease, Store
+from jobstore.blobstore import Storage, make_storage
+from jobstore.settings import Settings
+from jobstore.store import Lease, Store
 from worker.workspace import (
     CommitRefused,
     ScratchFull,

@@ -26,8 +26,8 @@ from multiprocessing.process import BaseProcess
 from types import FrameType
 from typing import Any, Literal
 
-from service.settings import Settings
-from service.store import Store
+from jobstore.settings import Settings
+from jobstore.store import Store
 from worker.execute import Stage, execute_job, worker_id_prefix
 
 logger = logging.getLogger(__name__)

@@ -17,7 +17,7 @@ from typing import Any
 from dcseg.config import JobConfig
 from dcseg.progress import weighted
 from dcseg.stages import STAGES, Stage, StageRun, key_of
-from worker.contract import input_layout
+from jobstore.contract import input_layout
 from worker.execute import Stage as WorkerStage
 from worker.execute import StageContext, StageOutcome
 

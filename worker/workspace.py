@@ -19,13 +19,13 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Protocol
 
-from service.blobstore import LocalStorage, Storage
-from worker.contract import MANIFEST, JobPaths, UploadPaths
+from jobstore.blobstore import LocalStorage, Storage
+from jobstore.contract import MANIFEST, JobPaths, UploadPaths
 
 if TYPE_CHECKING:
-    from service.models import Upload
-    from service.s3 import S3Storage
-    from service.settings import Settings
+    from jobstore.models import Upload
+    from jobstore.s3 import S3Storage
+    from jobstore.settings import Settings
 
 MANIFEST_VERSION = 1
 
@@ -268,7 +268,7 @@ def open_workspace(
     """The workspace of ``storage``'s kind for one run of a job."""
     if isinstance(storage, LocalStorage):
         return LocalWorkspace(storage.root, job_id, parent_id)
-    from service.s3 import S3Storage
+    from jobstore.s3 import S3Storage
 
     assert isinstance(storage, S3Storage)
     return ScratchWorkspace(storage, settings, tenant, job_id, parent_id, lease_check)

@@ -9,7 +9,7 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from service.settings import Settings
+    from jobstore.settings import Settings
 
 
 def register(subparsers: Any) -> None:
@@ -54,8 +54,8 @@ def refusal(settings: Settings, host: str) -> str | None:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from jobstore.settings import get_settings
     from service.main import create_app
-    from service.settings import get_settings
 
     settings = get_settings()
     reason = refusal(settings, args.host)

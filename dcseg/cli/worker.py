@@ -26,7 +26,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from service.settings import get_settings
+    from jobstore.settings import get_settings
 
     settings = get_settings()
     if not settings.broker_url:

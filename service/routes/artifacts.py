@@ -9,10 +9,10 @@ from typing import Annotated
 from fastapi import APIRouter, Header, Response
 from fastapi.responses import StreamingResponse
 
+from jobstore.models import utcnow
 from service import artifacts
 from service.deps import StateDep, TenantDep
 from service.jobs import etag_matches
-from service.models import utcnow
 from service.problems import ApiProblem, problem_responses
 from service.schemas import ArtifactPublic, ArtifactsPublic
 

@@ -20,12 +20,14 @@ from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
+from jobstore.contract import UploadPaths
+from jobstore.models import Upload, utcnow
+from jobstore.s3 import S3Storage, is_missing
+from jobstore.store import new_id
 from service import uploads
 from service.deps import AppState, StateDep, TenantDep
-from service.models import Upload, utcnow
 from service.problems import ApiProblem, problem_responses
 from service.routes.uploads import _created, _store
-from service.s3 import S3Storage, is_missing
 from service.schemas import (
     DirectUploadComplete,
     DirectUploadCreate,
@@ -34,8 +36,6 @@ from service.schemas import (
     DirectUploadPublic,
     UploadPublic,
 )
-from service.store import new_id
-from worker.contract import UploadPaths
 
 router = APIRouter(prefix="/v1/direct-uploads", tags=["uploads"])
 

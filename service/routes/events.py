@@ -27,8 +27,8 @@ from fastapi.responses import StreamingResponse
 from starlette.applications import Starlette
 from starlette.types import Receive, Scope, Send
 
+from jobstore.models import Event
 from service.deps import AppState, StateDep, StreamSlots, TenantDep
-from service.models import Event
 from service.problems import ApiProblem, problem_responses
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])

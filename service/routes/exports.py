@@ -13,8 +13,8 @@ from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, StreamingResponse
 
+from jobstore.blobstore import StoredFile, read_local
 from service import artifacts, exports, instances
-from service.blobstore import StoredFile, read_local
 from service.deps import AppState, StateDep, TenantDep
 from service.problems import ApiProblem, problem_responses
 from service.routes.artifacts import (

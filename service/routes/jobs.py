@@ -12,6 +12,9 @@ from sqlalchemy.exc import IntegrityError
 
 from dcseg.errors import InputError
 from dcseg.options import build_config, check_size
+from jobstore.contract import TERMINAL
+from jobstore.models import Job
+from jobstore.store import Conflict, Cursor, TooManyJobs, new_id
 from service.deps import AppState, StateDep, TenantDep
 from service.exports import remove_cached
 from service.idempotency import IdempotencyKeyHeader, idempotent
@@ -24,11 +27,8 @@ from service.jobs import (
     job_url,
     request_hash,
 )
-from service.models import Job
 from service.problems import ApiProblem, problem_responses
 from service.schemas import JobCreate, JobPublic, JobsPublic, JobStatus
-from service.store import Conflict, Cursor, TooManyJobs, new_id
-from worker.contract import TERMINAL
 
 logger = logging.getLogger(__name__)
 

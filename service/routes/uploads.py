@@ -11,14 +11,14 @@ from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
+from jobstore.contract import UploadPaths
+from jobstore.models import Upload
+from jobstore.store import UploadInUse, new_id
 from service import uploads
 from service.deps import AppState, StateDep, TenantDep
 from service.idempotency import IdempotencyKeyHeader, idempotent_async
-from service.models import Upload
 from service.problems import ApiProblem, problem_responses
 from service.schemas import UploadLinks, UploadPublic
-from service.store import UploadInUse, new_id
-from worker.contract import UploadPaths
 
 router = APIRouter(prefix="/v1/uploads", tags=["uploads"])
 

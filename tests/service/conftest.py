@@ -18,9 +18,9 @@ from typing import Any, Literal, cast
 import httpx
 import pytest
 
+from jobstore.settings import Settings
 from service.deps import AppState
 from service.main import create_app
-from service.settings import Settings
 
 with warnings.catch_warnings():
     # starlette deprecates driving TestClient with httpx in favour of httpx2; same behaviour.

@@ -9,7 +9,7 @@ from pydantic import SecretStr
 
 from dcseg.cli import main
 from dcseg.cli.serve import is_loopback
-from service.settings import Settings, get_settings
+from jobstore.settings import Settings, get_settings
 
 
 @pytest.fixture(autouse=True)

@@ -27,7 +27,7 @@ def test_openapi_document_is_up_to_date():
 
 def test_service_and_worker_contract_import_without_torch():
     code = (
-        "import sys, service.main, service.store, worker.contract, dcseg.client; "
+        "import sys, service.main, jobstore.store, jobstore.contract, dcseg.client; "
         "bad = [m for m in ('torch', 'worker.execute', 'worker.stages') if m in sys.modules]; "
         "print(bad); sys.exit(1 if bad else 0)"
     )

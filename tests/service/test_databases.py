@@ -18,9 +18,9 @@ import pytest
 from sqlalchemy import insert
 from sqlalchemy.engine import make_url
 
+from jobstore.models import SCHEMA_VERSION, Job, SchemaVersion, Upload
+from jobstore.store import Cursor, SchemaError, Store, new_id
 from service.main import create_app
-from service.models import SCHEMA_VERSION, Job, SchemaVersion, Upload
-from service.store import Cursor, SchemaError, Store, new_id
 from tests.service.conftest import (
     AUTH_A,
     AUTH_B,
@@ -64,7 +64,7 @@ def postgres_server() -> Iterator[str]:
 
 def _reset(url: str) -> None:
     store = Store(url)
-    from service.models import Base
+    from jobstore.models import Base
 
     Base.metadata.drop_all(store.engine)
     store.close()

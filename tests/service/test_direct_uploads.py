@@ -11,8 +11,8 @@ from typing import Any
 import httpx
 import pytest
 
+from jobstore.s3 import S3Storage
 from service.main import create_app
-from service.s3 import S3Storage
 from tests.s3server import S3Server, s3_server, s3_settings  # noqa: F401 (fixture)
 from tests.service.conftest import AUTH_A, TestClient, assert_problem, make_settings, state_of
 

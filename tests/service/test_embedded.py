@@ -17,8 +17,8 @@ import pytest
 
 from dcseg.cli import main
 from dcseg.client import ApiError, Client
+from jobstore.store import Store
 from service.main import create_app
-from service.store import Store
 from tests.service.conftest import (
     AUTH_A,
     KEY_A,

@@ -24,8 +24,8 @@ from dcseg.io import images
 from dcseg.io.captures import common
 from dcseg.io.limits import LimitProblem
 from dcseg.io.validate import validate_inputs
+from jobstore.models import Upload
 from service.main import create_app
-from service.models import Upload
 from tests.service.conftest import (
     AUTH_A,
     TAR,

@@ -15,10 +15,10 @@ from typing import Any
 import pytest
 
 from dcseg.cli import main
+from jobstore.settings import Settings, get_settings
 from service.deps import AppState
 from service.main import create_app
 from service.routes import events as events_route
-from service.settings import Settings, get_settings
 from tests.service.conftest import (
     AUTH_A,
     KEY_A,

@@ -18,18 +18,18 @@ from typing import Any
 import pytest
 from pydantic import ValidationError
 
-import service.store
+import jobstore.store
+from jobstore.contract import JobPaths
+from jobstore.models import Job, utcnow
+from jobstore.settings import Settings
+from jobstore.store import Store, new_id
 from service.deps import AppState
-from service.models import Job, utcnow
 from service.problems import ApiProblem
 from service.routes.jobs import _new_job
 from service.schemas import JobCreate
-from service.settings import Settings
-from service.store import Store, new_id
 from tests.service import test_databases
 from tests.service.conftest import make_settings
 from tests.worker.fakes import FakeStage, RecordingQueue
-from worker.contract import JobPaths
 from worker.execute import execute_job, read_manifest
 
 LEASE = timedelta(seconds=60)
@@ -110,7 +110,7 @@ def test_attempts_cap_is_a_store_setting(db_url):
 
 
 def _job_with_upload(store: Store) -> str:
-    from service.models import Upload
+    from jobstore.models import Upload
 
     if store.get_upload("u1", "t") is None:
         store.add_upload(
@@ -252,7 +252,7 @@ def test_settings_busy_timeout_must_be_shorter_than_stale_lease_window():
 # ----- 4. database clock -----
 def _skew(monkeypatch: pytest.MonkeyPatch, offset: timedelta) -> None:
     """The Python clock of this process (as the store reads it) is ``offset`` off."""
-    monkeypatch.setattr(service.store, "utcnow", lambda: utcnow() + offset)
+    monkeypatch.setattr(jobstore.store, "utcnow", lambda: utcnow() + offset)
 
 
 def test_lease_uses_database_clock_when_worker_clock_is_behind(store, monkeypatch):
@@ -323,7 +323,7 @@ def test_replicas_starting_together_both_sync_their_keys(postgres_server, monkey
     """Found by the deployed load benchmark: two API processes starting on a fresh database
     both insert the tenant of their keys; the loser failed startup with a unique violation.
     Another replica's insert lands between this one's check and its insert."""
-    from service.models import Tenant
+    from jobstore.models import Tenant
 
     url = postgres_server
     test_databases._reset(url)

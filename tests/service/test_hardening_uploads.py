@@ -19,10 +19,11 @@ import pytest
 from sqlalchemy import func, select, update
 
 import dcseg.io.archive
+from jobstore.contract import JobPaths
+from jobstore.models import IdempotencyKey, Job, Upload, utcnow
+from jobstore.settings import Settings
 from service import uploads as service_uploads
 from service.main import create_app
-from service.models import IdempotencyKey, Job, Upload, utcnow
-from service.settings import Settings
 from tests.service.conftest import (
     AUTH_A,
     AUTH_B,
@@ -33,7 +34,6 @@ from tests.service.conftest import (
     state_of,
     wait_for,
 )
-from worker.contract import JobPaths
 
 BOUND_S = 60.0
 """Upper bound on waits, so a regression fails instead of hanging (not a timing assert)."""
@@ -325,8 +325,8 @@ def test_schema_v1_gains_uploads_stored_bytes(tmp_path):
     old uploads count their archive size."""
     from sqlalchemy import delete, insert, inspect
 
-    from service.models import SCHEMA_VERSION, SchemaVersion
-    from service.store import Store
+    from jobstore.models import SCHEMA_VERSION, SchemaVersion
+    from jobstore.store import Store
 
     store = Store(f"sqlite:///{tmp_path / 'v1.db'}")
     store.init_schema()

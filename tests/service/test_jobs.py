@@ -7,11 +7,11 @@ from typing import Any
 
 import pytest
 
+from jobstore.contract import TASK_RUN_JOB, JobPaths
 from service.deps import RateLimiter
 from service.queue import CeleryQueue
 from tests.service.conftest import AUTH_A, AUTH_B, assert_problem, make_settings, state_of
 from tests.worker.fakes import FakeStage, RecordingQueue
-from worker.contract import TASK_RUN_JOB, JobPaths
 from worker.execute import execute_job
 
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from jobstore.models import Job, Upload
+from jobstore.settings import Settings
+from jobstore.store import Store, new_id
 from service.main import recover_once, sweep
-from service.models import Job, Upload
-from service.settings import Settings
-from service.store import Store, new_id
 from tests.service.conftest import make_settings
 from tests.worker.fakes import RecordingQueue
 

@@ -14,9 +14,9 @@ from typing import Any
 import httpx
 import pytest
 
+from jobstore.s3 import S3Storage
+from jobstore.settings import Settings
 from service.main import create_app
-from service.s3 import S3Storage
-from service.settings import Settings
 from tests.s3server import S3Server, s3_server, s3_settings  # noqa: F401 (fixture)
 from tests.service.conftest import AUTH_A, AUTH_B, TAR, TestClient, assert_problem, state_of
 from tests.worker.fakes import FakeStage

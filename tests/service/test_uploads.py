@@ -14,7 +14,7 @@ import cv2
 import pytest
 from sqlalchemy import func, select
 
-from service.models import Upload
+from jobstore.models import Upload
 from tests.service.conftest import (
     AUTH_A,
     AUTH_B,

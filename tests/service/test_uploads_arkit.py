@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from dcseg.io.lzfse_buffers import compress
+from jobstore.settings import Settings
 from service.problems import ApiProblem
-from service.settings import Settings
 from service.uploads import extract_and_validate
 from tests.dcseg.io.test_captures_record3d import write_r3d_file, write_r3d_folder
 

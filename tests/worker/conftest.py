@@ -13,9 +13,9 @@ from typing import IO, Any
 import pytest
 from pydantic import SecretStr
 
-from service.models import Job, Upload
-from service.settings import Settings
-from service.store import Store, new_id
+from jobstore.models import Job, Upload
+from jobstore.settings import Settings
+from jobstore.store import Store, new_id
 from tests.service.conftest import (
     scene,  # noqa: F401 (the shared synthetic capture fixture)
     stop_process,

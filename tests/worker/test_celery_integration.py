@@ -19,6 +19,7 @@ from urllib.parse import urlparse
 import pytest
 import redis
 
+from jobstore.contract import TASK_RUN_JOB, JobPaths
 from service.main import create_app
 from service.queue import marker_key
 from tests.service.conftest import (
@@ -32,7 +33,6 @@ from tests.service.conftest import (
     wait_for,
 )
 from tests.worker.conftest import worker_log, worker_processes
-from worker.contract import TASK_RUN_JOB, JobPaths
 
 REDIS_URL = os.environ.get("DCSEG_TEST_REDIS", "redis://127.0.0.1:6379/15")
 

@@ -9,10 +9,10 @@ from datetime import timedelta
 import pytest
 
 from dcseg.errors import InputError
-from service.blobstore import LocalStorage
+from jobstore.blobstore import LocalStorage
+from jobstore.contract import JobPaths
 from tests.worker.conftest import add_job
 from tests.worker.fakes import FakeStage
-from worker.contract import JobPaths
 from worker.execute import execute_job
 
 

@@ -20,16 +20,16 @@ import httpx
 import pytest
 from fastapi.concurrency import run_in_threadpool
 
+from jobstore.contract import JobPaths
+from jobstore.models import Upload
+from jobstore.settings import Settings
+from jobstore.store import Store
 from service.main import shut_down
-from service.models import Upload
-from service.settings import Settings
-from service.store import Store
 from tests.service import test_databases
 from tests.service.conftest import AUTH_A, KEY_A, TAR, free_port, tar_bytes, wait_ready
 from tests.service.conftest import wait_for as wait_until
 from tests.worker.conftest import REPO, add_job
 from tests.worker.fakes import FakeStage, slow_stages, stuck_stages
-from worker.contract import JobPaths
 from worker.execute import default_worker_id, execute_job, read_manifest, worker_id_prefix
 from worker.local import KILL_WAIT_S, EmbeddedWorker
 

@@ -19,11 +19,12 @@ from typing import IO
 import httpx
 import pytest
 
+from jobstore.contract import JobPaths
+from jobstore.models import Job, Upload
+from jobstore.settings import Settings
+from jobstore.store import Store
 from service.main import create_app
-from service.models import Job, Upload
 from service.queue import CeleryQueue
-from service.settings import Settings
-from service.store import Store
 from tests.service.conftest import (
     AUTH_A,
     KEY_A,
@@ -39,7 +40,6 @@ from tests.service.conftest import wait_for as wait_until
 from tests.worker.conftest import REPO, add_job
 from tests.worker.fakes import FakeStage, SilentStage, stuck_stages
 from tests.worker.test_celery_integration import REDIS_URL, _forget_queue, _redis_reachable
-from worker.contract import JobPaths
 from worker.execute import Stage, execute_job, read_manifest
 from worker.local import EmbeddedWorker
 from worker.stages import default_stages

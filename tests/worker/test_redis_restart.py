@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 import redis
 
+from jobstore.contract import TERMINAL, JobPaths
 from service.main import create_app
 from service.queue import marker_key
 from tests.service.conftest import (
@@ -34,7 +35,6 @@ from tests.service.conftest import (
     wait_for,
 )
 from tests.worker.conftest import worker_log, worker_processes
-from worker.contract import TERMINAL, JobPaths
 
 QUEUE = "gpu"
 TINY = {"reconstruct": {"iterations": 2, "holdout": 0}, "affinity": {"iterations": 5, "rays": 64}}

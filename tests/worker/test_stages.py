@@ -10,9 +10,9 @@ import pytest
 
 from dcseg.errors import InputError
 from dcseg.stages import VALIDATE
+from jobstore.contract import TASK_RUN_JOB, JobPaths
 from tests.worker.conftest import add_job
 from worker import celery_app
-from worker.contract import TASK_RUN_JOB, JobPaths
 from worker.execute import execute_job
 from worker.stages import LibraryStage, default_stages, job_config
 

@@ -19,7 +19,7 @@ from dcseg.config import FrameBudget
 from dcseg.errors import InputError
 from dcseg.io.captures.plan import CaptureMeta, plan_capture
 from dcseg.stages import RECONSTRUCT
-from service.settings import Settings
+from jobstore.settings import Settings
 from tests.scenes.analytic import make_capture
 from worker.execute import StageContext
 from worker.stages import LibraryStage

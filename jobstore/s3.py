@@ -1,5 +1,5 @@
 """S3-compatible object storage (AWS S3, SeaweedFS, MinIO, Ceph RGW, R2) behind
-:class:`service.blobstore.Storage`.
+:class:`jobstore.blobstore.Storage`.
 
 Keys, under ``<DCSEG_S3_PREFIX>tenants/<tenant>/`` (the tenant URL-quoted)::
 
@@ -24,11 +24,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
-from service.blobstore import CHUNK, StoredFile, manifest_files
+from jobstore.blobstore import CHUNK, StoredFile, manifest_files
 
 if TYPE_CHECKING:
-    from service.settings import Settings
-    from service.store import Store
+    from jobstore.settings import Settings
+    from jobstore.store import Store
 
 logger = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """Where uploads, stage outputs, manifests and artifacts live: the :class:`Storage` interface.
 
 Two implementations: :class:`LocalStorage` (a directory shared by the API and the workers,
-the embedded default; layout in :mod:`worker.contract`) and :class:`service.s3.S3Storage`
+the embedded default; layout in :mod:`jobstore.contract`) and :class:`jobstore.s3.S3Storage`
 (an S3-compatible bucket, one prefix per tenant; workers fetch into private scratch space).
 The API and the worker go through this interface only; :func:`make_storage` picks one from
 the settings.
@@ -17,11 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from worker.contract import MANIFEST, JobPaths, UploadPaths
+from jobstore.contract import MANIFEST, JobPaths, UploadPaths
 
 if TYPE_CHECKING:
-    from service.settings import Settings
-    from service.store import Store
+    from jobstore.settings import Settings
+    from jobstore.store import Store
 
 CHUNK = 1 << 20
 
@@ -170,7 +170,7 @@ class LocalStorage:
 def make_storage(settings: Settings) -> Storage:
     """The storage the settings configure (``DCSEG_STORAGE_BACKEND``)."""
     if settings.storage_backend == "s3":
-        from service.s3 import S3Storage
+        from jobstore.s3 import S3Storage
 
         return S3Storage.from_settings(settings)
     return LocalStorage(settings.storage_dir)

@@ -25,7 +25,8 @@ from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import ConnectionPoolEntry
 
-from service.models import (
+from jobstore.contract import ACTIVE, TERMINAL
+from jobstore.models import (
     SCHEMA_VERSION,
     ApiKey,
     Base,
@@ -37,10 +38,9 @@ from service.models import (
     Upload,
     utcnow,
 )
-from worker.contract import ACTIVE, TERMINAL
 
 if TYPE_CHECKING:
-    from service.settings import Settings
+    from jobstore.settings import Settings
 
 logger = logging.getLogger(__name__)
 
@@ -158,7 +158,7 @@ class Store:
 
     def __init__(self, url: str, *, busy_timeout_s: float = 10.0, max_attempts: int = 3) -> None:
         """``busy_timeout_s``: SQLite's wait for a write lock; ``max_attempts``: claims of a job
-        before it fails (see :class:`service.settings.Settings`, whose defaults these match)."""
+        before it fails (see :class:`jobstore.settings.Settings`, whose defaults these match)."""
         self.url = url
         self.max_attempts = max_attempts
         self.engine = make_engine(url, busy_timeout_s)

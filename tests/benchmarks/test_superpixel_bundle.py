@@ -10,7 +10,7 @@ from benchmarks.superpixel_bundle import make_bundle, regions
 from dcseg.io.masks import read_agnostic_masks
 from dcseg.io.semantic import read_semantic_maps, read_vocabulary
 from dcseg.jobs import RunInputs
-from tests.dcseg.io.conftest import make_scene, write_replica
+from tests.dcseg.io.layouts import make_scene, write_replica
 
 
 def test_regions_split_colours_and_drop_specks() -> None:

@@ -13,7 +13,7 @@ from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.types import Intrinsics
-from tests.dcseg.io.conftest import RgbdScene, make_scene, write_7scenes
+from tests.dcseg.io.layouts import RgbdScene, make_scene, write_7scenes
 
 OPTIONS = CaptureOptions(intrinsics=(20.0, 22.0, 7.5, 5.5))
 

@@ -14,7 +14,7 @@ from dcseg.errors import InputError
 from dcseg.io import images
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.captures.manifest import write_capture
-from tests.dcseg.io.conftest import (
+from tests.dcseg.io.layouts import (
     RgbdScene,
     scene_capture,
     write_7scenes,

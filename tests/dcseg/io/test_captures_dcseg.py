@@ -14,7 +14,7 @@ from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.captures.manifest import write_capture
 from dcseg.io.images import write_image
 from dcseg.types import Capture, Frame, Intrinsics
-from tests.dcseg.io.conftest import RgbdScene, scene_capture
+from tests.dcseg.io.layouts import RgbdScene, scene_capture
 
 
 def _write(scene: RgbdScene, tmp_path: Path) -> Path:

@@ -11,7 +11,7 @@ import pytest
 
 from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
-from tests.dcseg.io.conftest import GL, RgbdScene, nerfstudio_doc, write_nerfstudio
+from tests.dcseg.io.layouts import GL, RgbdScene, nerfstudio_doc, write_nerfstudio
 
 
 def _project_opencv(c2w: np.ndarray, k: np.ndarray, point: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.types import Intrinsics
-from tests.dcseg.io.conftest import RgbdScene, write_replica
+from tests.dcseg.io.layouts import RgbdScene, write_replica
 
 SAMPLE = Path("/work/shared/data/replica_room0_small")
 

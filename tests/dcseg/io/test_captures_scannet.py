@@ -12,7 +12,7 @@ from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
-from tests.dcseg.io.conftest import RgbdScene, make_scene, write_scannet
+from tests.dcseg.io.layouts import RgbdScene, make_scene, write_scannet
 
 
 def test_smoke(rgbd_scene: RgbdScene, tmp_path: Path) -> None:

@@ -210,9 +210,15 @@ class PipelineConfig:
     budget: FrameBudget = field(default_factory=FrameBudget)
     rules: SizeRules = field(default_factory=SizeRules)
     scale: float = option(
-        DEFAULT_SCALE, bounds=(0.0, 1.0), help="clustering scale in [0, 1]", flag="--scale"
+        DEFAULT_SCALE,
+        bounds=(0.0, 1.0),
+        help="clustering scale in [0, 1]",
+        flag="--scale",
+        group="segment",
     )
-    seed: int = option(0, bounds=(0, MAX_SEED), help="seed of every random choice", flag="--seed")
+    seed: int = option(
+        0, bounds=(0, MAX_SEED), help="seed of every random choice", flag="--seed", group="segment"
+    )
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.scale <= 1.0:

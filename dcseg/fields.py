@@ -18,6 +18,7 @@ HELP = "dcseg.help"
 FLAG = "dcseg.flag"
 FIXED = "dcseg.fixed"
 ABOVE = "dcseg.above"
+GROUP = "dcseg.group"
 NONE_WORD = "dcseg.none_word"
 
 
@@ -31,6 +32,7 @@ def option(
     fixed: bool = False,
     above: bool = False,
     none_word: str | None = None,
+    group: str | None = None,
 ) -> Any:
     """A dataclass field that jobs may set.
 
@@ -44,9 +46,11 @@ def option(
         fixed: not settable per stage (e.g. ``seed``, set for every stage at once).
         above: the low bound is exclusive (``(low, high]``).
         none_word: the word a job gives for None (``"native"``: no cap).
+        group: the job option group that sets this field although its dataclass is not a
+            group of its own (``"segment"``: the segmentation values a job sets directly).
     """
     metadata: dict[str, Any] = {BOUNDS: bounds, CHOICES: choices, HELP: help, FLAG: flag}
-    metadata.update({FIXED: fixed, ABOVE: above, NONE_WORD: none_word})
+    metadata.update({FIXED: fixed, ABOVE: above, NONE_WORD: none_word, GROUP: group})
     return dataclasses.field(default=default, metadata=metadata)
 
 

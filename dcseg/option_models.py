@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from types import NoneType
 from typing import Annotated, Any, Literal
 
@@ -24,7 +24,7 @@ from pydantic import (
     create_model,
 )
 
-from dcseg.fields import ABOVE, BOUNDS, CHOICES, FIXED, HELP, NONE_WORD
+from dcseg.fields import ABOVE, BOUNDS, CHOICES, FIXED, GROUP, HELP, NONE_WORD
 
 Member = tuple[type[Any], str]
 """A settable field: its dataclass and its name."""
@@ -44,6 +44,16 @@ def declared(cls: type[Any], name: str) -> dataclasses.Field[Any]:
 def settable(cls: type[Any]) -> dict[str, Member]:
     """Every field of ``cls`` a job may set (all but those declared ``fixed``)."""
     return {f.name: (cls, f.name) for f in dataclasses.fields(cls) if not f.metadata.get(FIXED)}
+
+
+def grouped(group: str, classes: Iterable[type[Any]]) -> dict[str, Member]:
+    """The fields of ``classes`` declared with ``group=group`` (:func:`dcseg.fields.option`)."""
+    return {
+        f.name: (cls, f.name)
+        for cls in classes
+        for f in dataclasses.fields(cls)
+        if f.metadata.get(GROUP) == group
+    }
 
 
 def values_model(

@@ -26,6 +26,7 @@ from pydantic import BaseModel, Field, ValidationError
 
 from dcseg.affinity.config import AffinityConfig
 from dcseg.assign.config import AssignConfig
+from dcseg.cluster.config import ClusterConfig
 from dcseg.config import (
     RENAMED_KEYS,
     CaptureOptions,
@@ -36,21 +37,25 @@ from dcseg.config import (
     renamed,
 )
 from dcseg.errors import InputError, Problem
-from dcseg.option_models import Member, Strict, settable, values_model
+from dcseg.option_models import Member, Strict, grouped, settable, values_model
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.segment.config import MaskConfig
 from dcseg.sizes import SCALED
 
 PresetName = Literal["fast", "paper"]
 """Named parameter sets (:func:`dcseg.config.preset`)."""
 PRESET_NAMES: tuple[str, ...] = typing.get_args(PresetName)
 
-SEGMENT_OPTIONS: dict[str, Member] = {
-    "scale": (PipelineConfig, "scale"),
-    "matcher": (AssignConfig, "matcher"),
-    "seed": (PipelineConfig, "seed"),
-    "label_maps": (AssignConfig, "label_maps"),
+SEGMENT_SECTIONS: dict[str, type[Any]] = {
+    "": PipelineConfig,
+    "cluster": ClusterConfig,
+    "masks": MaskConfig,
+    "assign": AssignConfig,
 }
-"""The ``segment`` options: the fields of the segmentation a job sets directly."""
+"""Where ``segment`` options live: ``PipelineConfig`` itself and its segmentation stages."""
+
+SEGMENT_OPTIONS: dict[str, Member] = grouped("segment", SEGMENT_SECTIONS.values())
+"""The ``segment`` options: the fields declared with ``group="segment"``, by name."""
 
 ReconstructOptions = values_model(
     "ReconstructOptions",
@@ -127,16 +132,11 @@ def build_config(preset_name: str | PipelineConfig, options: JobOptions) -> JobC
     seg = group(options, "segment").model_dump(exclude_unset=stored)
     reconstruct = _replace(base.reconstruct, options.reconstruct, "options.reconstruct")
     affinity = _replace(base.affinity, options.affinity, "options.affinity")
-    assign = {"matcher": seg.get("matcher"), "label_maps": seg.get("label_maps")}
     try:
         cfg = dataclasses.replace(
-            base,
+            _segment(base, seg),
             reconstruct=reconstruct,
             affinity=affinity,
-            scale=seg.get("scale", base.scale),
-            assign=dataclasses.replace(
-                base.assign, **{k: v for k, v in assign.items() if v is not None}
-            ),
             budget=_budget(base.budget, options.budget),
             rules=dataclasses.replace(
                 base.rules, fixed=tuple(dict.fromkeys((*base.rules.fixed, *_explicit(options))))
@@ -147,6 +147,19 @@ def build_config(preset_name: str | PipelineConfig, options: JobOptions) -> JobC
     except ValueError as error:
         raise InputError([Problem("options", str(error))]) from None
     return JobConfig(cfg, capture)
+
+
+def _segment(base: PipelineConfig, given: dict[str, Any]) -> PipelineConfig:
+    """``base`` with the given ``segment`` options set in the sections that declare them."""
+    changes: dict[str, Any] = {}
+    for section, cls in SEGMENT_SECTIONS.items():
+        names = [n for n, (c, _) in SEGMENT_OPTIONS.items() if c is cls and n in given]
+        values = {n: given[n] for n in names if n != "seed"}  # the seed goes to every stage
+        if values and section:
+            changes[section] = dataclasses.replace(getattr(base, section), **values)
+        elif values:
+            changes.update(values)
+    return dataclasses.replace(base, **changes)
 
 
 def _base(preset_name: str | PipelineConfig) -> PipelineConfig:

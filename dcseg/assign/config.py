@@ -196,6 +196,7 @@ class AssignConfig:
         choices=("assignment", "matching"),
         help="class replication (assignment) or one-to-one",
         flag="--matcher",
+        group="segment",
     )
     replicas: int | Literal["components"] = 3
     min_iou: float = 0.05
@@ -233,6 +234,7 @@ class AssignConfig:
         help="rendered label maps from the Gaussians' final classes (gaussians, as in the "
         "labelled PLY) or from the cluster maps through each cluster's class (clusters)",
         flag="--label-maps",
+        group="segment",
     )
     filter_label_maps: bool = False
 

@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import dataclasses
 import typing
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from dcseg.affinity.config import PRESETS as AFFINITY_PRESETS
 from dcseg.affinity.config import AffinityConfig
-from dcseg.cli import main
 from dcseg.config import (
     BUDGET_PRESETS,
     MAX_KEYFRAMES,
@@ -118,22 +116,6 @@ def test_segment_options_choose_what_the_label_maps_show():
         parse_options({"segment": {"label_maps": "pixels"}})
 
 
-def test_cli_label_maps_flag_reaches_the_config(tmp_path: Path, monkeypatch):
-    seen = []
-
-    def record(args):
-        from dcseg.cli._pipeline import job_config
-
-        seen.append(job_config(args).pipeline.assign.label_maps)
-        return 0
-
-    monkeypatch.setattr("dcseg.cli.run.run", record)
-    args = ["run", str(tmp_path), "--agnostic-masks", str(tmp_path), "--semantic-masks"]
-    args += [str(tmp_path), "--vocabulary", str(tmp_path / "v.txt"), "--out", str(tmp_path / "o")]
-    assert main(args) == 0 and main([*args, "--label-maps", "clusters"]) == 0
-    assert seen == ["gaussians", "clusters"]
-
-
 def test_stored_options_rebuild_the_same_configs():
     options = parse_options(
         {"capture": {"size": [64, 48], "stride": 2}, "reconstruct": {"iterations": 9}}
@@ -171,19 +153,6 @@ def test_every_bad_field_is_named():
 def test_unknown_preset_is_named():
     with pytest.raises(InputError, match="unknown preset 'huge'"):
         build_config("huge", JobOptions())
-
-
-def test_cli_refuses_out_of_range_values_naming_the_flag(tmp_path: Path, capsys):
-    args = ["run", str(tmp_path), "--agnostic-masks", str(tmp_path), "--semantic-masks"]
-    args += [str(tmp_path), "--vocabulary", str(tmp_path / "v.txt"), "--out", str(tmp_path / "o")]
-    with pytest.raises(SystemExit, match=r"--scale \(options.segment.scale\)"):
-        main([*args, "--scale", "2"])
-    with pytest.raises(SystemExit, match=r"--size \(options.capture.size.0\)"):
-        main([*args, "--size", "90000x10"])
-    with pytest.raises(SystemExit, match=r"--depth-trunc"):
-        main([*args, "--depth-trunc", "inf"])
-    with pytest.raises(SystemExit, match=r"--min-confidence \(options.capture.min_confidence\)"):
-        main([*args, "--min-confidence", "3"])
 
 
 def test_min_confidence_is_bounded_and_reaches_the_capture_options():
@@ -232,3 +201,25 @@ def test_budget_travels_in_the_pipeline_config():
     assert PipelineConfig.from_dict(cfg.to_dict()).budget == BUDGET_PRESETS["paper"]
     with pytest.raises(ValueError, match="max_side"):
         FrameBudget(max_side=0)
+
+
+def test_every_declared_option_reaches_the_api_and_its_flag_the_cli():
+    """One declaration per option: the API models and the flags are generated from it."""
+    from dcseg.cli import build_parser
+    from dcseg.cli._options import GROUPS, dest, flags
+    from dcseg.fields import FLAG
+    from dcseg.option_models import declared as field_of
+
+    schema = JobOptions.model_json_schema()
+    expected = {}
+    for group, members in GROUPS.items():
+        ref = schema["properties"][group]["$ref"].split("/")[-1]
+        assert set(schema["$defs"][ref]["properties"]) == set(members), group
+        for key, (cls, name) in members.items():
+            flag = field_of(cls, name).metadata.get(FLAG)
+            if flag:
+                expected[f"{group}.{key}"] = flag
+    assert flags() == expected and expected["budget.max_keyframes"] == "--max-keyframes"
+    args = ["run", "c", "--agnostic-masks", "a", "--semantic-masks", "s", "--vocabulary", "v"]
+    run = build_parser().parse_args([*args, "--out", "o", "--max-keyframes", "7"])
+    assert getattr(run, dest("--max-keyframes")) == 7

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from dcseg.gaussians import SH_C0
@@ -79,3 +80,9 @@ def write_labelled_run(folder: Path, seed: int = 0) -> LabelledRun:
     write_gaussians_ply(folder / "scene_labelled.ply", gaussians, extra=extra)
     write_objects(folder, folder / "scene_labelled.ply", means, clusters, classes, VOCABULARY)
     return LabelledRun(folder, means, instance_ids)
+
+
+@pytest.fixture(scope="session")
+def labelled_run(tmp_path_factory: pytest.TempPathFactory) -> LabelledRun:
+    """The labelled run, written once per session (a conftest imports it to use it)."""
+    return write_labelled_run(tmp_path_factory.mktemp("viewer") / "run")

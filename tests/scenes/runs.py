@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from numpy.typing import NDArray
 
 from dcseg.io.exports import instance_records, write_instances_json, write_labels_json
@@ -119,3 +120,9 @@ def make_run(
     record = {"inputs": {"capture": str(run.parent / "no-such-capture")}, "counts": {}}
     (run / "run.json").write_text(json.dumps(record), encoding="utf-8")
     return run
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One finished run per test module (a conftest imports it to use it)."""
+    return make_run(tmp_path_factory.mktemp("export") / "run")

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 
-from dcseg.cli import main
 from dcseg.errors import InputError
 from dcseg.export import (
     FORMATS,
@@ -67,20 +66,6 @@ def test_an_object_table_of_another_scene_is_refused(run: Path, tmp_path: Path) 
 def test_options_out_of_range_name_the_field(field: str, value: object) -> None:
     with pytest.raises(InputError, match=f"^{field}: "):
         ExportOptions(**{field: value})  # type: ignore[arg-type]
-
-
-def test_cli_exports_and_reports_bad_instances(
-    run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    args = ["export", str(run), "--format", "spz", "--out", str(tmp_path), "--instance", "2"]
-    assert main(args) == 0
-    printed = capsys.readouterr().out.split()
-    assert printed == [
-        str(tmp_path / n) for n in ("instance_2.spz", "instances.spz.json", "frame.json")
-    ]
-    code = main(["export", str(run), "--format", "spz", "--out", str(tmp_path), "--instance", "9"])
-    assert code == 1
-    assert "instances: unknown instance id(s) [9]" in capsys.readouterr().err
 
 
 def test_formats_are_the_documented_ones() -> None:

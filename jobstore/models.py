@@ -1,6 +1,7 @@
 """The job store's tables (SQLAlchemy 2 ORM); SQLite and PostgreSQL alike.
 
-Bump :data:`SCHEMA_VERSION` and add a step to ``jobstore.store.MIGRATIONS`` for every change.
+Bump :data:`SCHEMA_VERSION` and add a step to ``jobstore.store.schema.MIGRATIONS`` for every
+change.
 """
 
 from __future__ import annotations

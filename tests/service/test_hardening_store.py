@@ -18,11 +18,10 @@ from typing import Any
 import pytest
 from pydantic import ValidationError
 
-import jobstore.store
 from jobstore.contract import JobPaths
 from jobstore.models import Job, utcnow
 from jobstore.settings import Settings
-from jobstore.store import Store, new_id
+from jobstore.store import Store, engine, events, idempotency, jobs, leases, new_id
 from service.deps import AppState
 from service.problems import ApiProblem
 from service.routes.jobs import _new_job
@@ -251,8 +250,10 @@ def test_settings_busy_timeout_must_be_shorter_than_stale_lease_window():
 
 # ----- 4. database clock -----
 def _skew(monkeypatch: pytest.MonkeyPatch, offset: timedelta) -> None:
-    """The Python clock of this process (as the store reads it) is ``offset`` off."""
-    monkeypatch.setattr(jobstore.store, "utcnow", lambda: utcnow() + offset)
+    """The Python clock of this process (as any part of the store would read it) is
+    ``offset`` off."""
+    for part in (engine, events, idempotency, jobs, leases):
+        monkeypatch.setattr(part, "utcnow", lambda: utcnow() + offset, raising=False)
 
 
 def test_lease_uses_database_clock_when_worker_clock_is_behind(store, monkeypatch):

@@ -2,7 +2,8 @@
 imports the exporter and little else, so it starts quickly).
 
 The job is ``{target, run, out, fmt, instances, options}``; the outcome is written to
-``result.json`` beside ``out``: ``{"files": [...]}`` or ``{"type": ..., ...}``.
+``result.json`` beside ``out``: ``{"files": [paths relative to out]}`` or
+``{"type": ..., ...}``.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ def run_exporter(
             Path(run), Path(out), fmt, instances=instances, options=_options(options)
         )
         _scrub_sidecars(paths, run)
-        result = {"files": [str(Path(p)) for p in paths]}
+        result = {"files": [_inside(Path(p), Path(out)) for p in paths]}
     except InputError as error:
         problems = [{"path": p.path, "reason": p.reason} for p in error.problems]
         result = {"type": "export-failed", "errors": _scrubbed(problems, run, out)}
@@ -49,6 +50,12 @@ def run_exporter(
         logging.getLogger(__name__).exception("export %s failed (error id %s)", fmt, error_id)
         result = {"type": "export-error", "error_id": error_id}
     Path(out).with_name("result.json").write_text(json.dumps(result), encoding="utf-8")
+
+
+def _inside(path: Path, out: Path) -> str:
+    """``path`` relative to ``out`` (the exporter may return it relative to the working
+    directory, as ``out`` was given, or absolute); ValueError when it is not inside."""
+    return path.resolve().relative_to(out.resolve()).as_posix()
 
 
 def _scrub_sidecars(paths: list[Path], run: str) -> None:

@@ -306,7 +306,7 @@ class Exporter:
     def _files_record(
         self, out: Path, paths: Sequence[Path], selection: Selection
     ) -> dict[str, Any]:
-        root = out.resolve()
+        root = out.resolve()  # the child names files relative to ``out``
         files: list[dict[str, Any]] = []
         for path in paths:
             resolved = (out / path).resolve()

@@ -26,11 +26,20 @@ def run_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
     return {p.relative_to(run).as_posix(): p.read_bytes() for p in run.rglob("*") if p.is_file()}
 
 
-@pytest.fixture
+@pytest.fixture(params=["absolute", "relative"])
 def env(
-    tmp_path: Path, scene_tar: bytes, run_files: dict[str, bytes]
+    request: pytest.FixtureRequest,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    scene_tar: bytes,
+    run_files: dict[str, bytes],
 ) -> Iterator[tuple[TestClient, str]]:
+    """A segmented job's service, its storage folder given as an absolute path or as the
+    default's relative ``./dcseg-data`` (resolved against the working directory)."""
     settings = make_settings(tmp_path, export_wait_s=120.0)
+    if request.param == "relative":
+        monkeypatch.chdir(tmp_path)
+        settings = settings.model_copy(update={"storage_dir": Path("dcseg-data")})
     with TestClient(create_app(settings)) as client:
         upload = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR}).json()
         yield client, run_segmented_job(client, upload["id"], files=run_files)

@@ -1,7 +1,9 @@
 """The FastAPI application: ``create_app(settings)``; ``app`` is the default instance.
 
 Nothing touches the database or the disk at import time: the lifespan opens the store, checks
-the schema, loads API keys, sweeps unfinished jobs and (embedded mode) starts a local worker.
+the schema, loads API keys, sweeps unfinished jobs and starts the local worker it is given, if
+any. The API never imports ``worker``: ``dcseg serve`` (the layer above both) hands it the
+embedded worker (:class:`LocalWorker`) when no broker is configured.
 """
 
 from __future__ import annotations
@@ -10,11 +12,11 @@ import asyncio
 import logging
 import shutil
 import time
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Callable, Sequence
 from contextlib import asynccontextmanager
 from datetime import timedelta
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
@@ -40,9 +42,6 @@ from service.routes import (
 )
 from service.uploads import remove_expired_uploads
 
-if TYPE_CHECKING:
-    from worker.local import EmbeddedWorker
-
 logger = logging.getLogger(__name__)
 
 DESCRIPTION = """\
@@ -52,6 +51,25 @@ Upload a capture archive (`POST /v1/uploads`), submit a job (`POST /v1/jobs`), p
 (`GET /v1/jobs/{id}`) or stream its events, then download its artifacts. Errors are RFC 9457
 `application/problem+json`. Authenticate with `Authorization: Bearer <api key>`.
 """
+
+
+class LocalWorker(Protocol):
+    """A worker that runs jobs inside or beside the API process (embedded mode, no broker),
+    started and stopped by the app's lifespan; ``worker.local.EmbeddedWorker`` is one."""
+
+    def start(self) -> None: ...
+
+    def ensure_running(self) -> None:
+        """Start the worker again if it died."""
+        ...
+
+    def stop(self, deadline: float | None = None) -> None:
+        """Stop by ``deadline`` (``time.monotonic()``)."""
+        ...
+
+
+LocalWorkerFactory = Callable[[Settings], LocalWorker | None]
+"""Makes the app's local worker from its settings; None = no local worker with them."""
 
 
 def sweep(store: Store, queue: JobQueue, settings: Settings) -> bool:
@@ -101,7 +119,7 @@ async def recover_lost_jobs(
     store: Store,
     queue: JobQueue,
     settings: Settings,
-    local: EmbeddedWorker | None,
+    local: LocalWorker | None,
     resend: bool = False,
 ) -> None:
     """Forever: requeue running jobs whose worker died (stale heartbeat) and enqueue them;
@@ -120,7 +138,7 @@ async def recover_lost_jobs(
 
 
 async def shut_down(
-    tasks: Sequence[asyncio.Task[None]], local: EmbeddedWorker | None, grace_s: float
+    tasks: Sequence[asyncio.Task[None]], local: LocalWorker | None, grace_s: float
 ) -> None:
     """Cancel the background ``tasks`` (recovery sweep, housekeeping) and stop the embedded
     worker, side by side and to one deadline ``grace_s`` from now: the whole shutdown takes at
@@ -194,8 +212,12 @@ def open_state(settings: Settings) -> AppState:
     )
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    """A new app; ``settings`` defaults to the environment's (:func:`get_settings`)."""
+def create_app(
+    settings: Settings | None = None, *, local_worker: LocalWorkerFactory | None = None
+) -> FastAPI:
+    """A new app; ``settings`` defaults to the environment's (:func:`get_settings`).
+    ``local_worker`` makes the worker the lifespan starts after the startup sweep and stops at
+    shutdown (``dcseg serve`` passes the embedded worker's); None = the API alone."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -205,11 +227,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.dcseg = state
         app.state.exporter = Exporter(current)
         swept = sweep(state.store, state.queue, current)
-        local = None
-        if current.broker_url is None and current.embedded_worker != "off":
-            from worker.local import EmbeddedWorker
-
-            local = EmbeddedWorker(current, mode=current.embedded_worker)
+        local = local_worker(current) if local_worker is not None else None
+        if local is not None:
             local.start()
         recovery = asyncio.create_task(
             recover_lost_jobs(state.store, state.queue, current, local, resend=not swept),

@@ -1,15 +1,25 @@
-"""``dcseg serve``: the HTTP API (uvicorn); without a broker it also runs jobs itself."""
+"""``dcseg serve``: the HTTP API (uvicorn); without a broker it also runs jobs itself.
+
+The API (``service``) and the workers (``worker``) never import each other: this command, the
+layer above both, hands the app its embedded worker (:func:`embedded_worker`).
+``uvicorn dcseg.cli.serve:create_app --factory`` serves the same app without the command's
+checks; ``uvicorn service.main:app`` serves the API alone.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import ipaddress
 import math
 import sys
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from fastapi import FastAPI
+
     from jobstore.settings import Settings
+    from worker.local import EmbeddedWorker
 
 
 def register(subparsers: Any) -> None:
@@ -51,14 +61,49 @@ def refusal(settings: Settings, host: str) -> str | None:
     )
 
 
+def embedded(settings: Settings) -> bool:
+    """Whether jobs run in an embedded worker: no broker, and ``DCSEG_EMBEDDED_WORKER`` on."""
+    return settings.broker_url is None and settings.embedded_worker != "off"
+
+
+def embedded_worker(settings: Settings) -> EmbeddedWorker | None:
+    """The app's local worker (``service.main.LocalWorkerFactory``): the embedded worker in
+    ``DCSEG_EMBEDDED_WORKER`` mode (a child process by default), or None with a broker."""
+    mode = settings.embedded_worker
+    if mode == "off" or not embedded(settings):
+        return None
+    from worker.local import EmbeddedWorker
+
+    return EmbeddedWorker(settings, mode=mode)
+
+
+def missing_worker(settings: Settings) -> str | None:
+    """Why jobs could not run here (embedded mode, but no ``worker`` package: the API image),
+    or None."""
+    if not embedded(settings) or importlib.util.find_spec("worker") is not None:
+        return None
+    return (
+        "no DCSEG_BROKER_URL, so jobs would run in an embedded worker, but the worker package "
+        "is not installed (the API image); set DCSEG_BROKER_URL, or DCSEG_EMBEDDED_WORKER=off "
+        "to serve the API alone"
+    )
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The app ``dcseg serve`` runs: the API plus, without a broker, the embedded worker;
+    ``settings`` defaults to the environment's."""
+    from service.main import create_app as create_api
+
+    return create_api(settings, local_worker=embedded_worker)
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from jobstore.settings import get_settings
-    from service.main import create_app
 
     settings = get_settings()
-    reason = refusal(settings, args.host)
+    reason = refusal(settings, args.host) or missing_worker(settings)
     if reason is not None:
         sys.stderr.write(f"dcseg serve: {reason}\n")
         return 2

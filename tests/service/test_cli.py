@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 
 import pytest
 from pydantic import SecretStr
 
 from dcseg.cli import main
-from dcseg.cli.serve import is_loopback
+from dcseg.cli.serve import embedded_worker, is_loopback
 from jobstore.settings import Settings, get_settings
+from worker.local import EmbeddedWorker
 
 
 @pytest.fixture(autouse=True)
@@ -30,6 +32,27 @@ def test_serve_refuses_public_address_without_keys(capsys):
 def test_worker_needs_a_broker(capsys):
     assert main(["worker"]) == 2
     assert "DCSEG_BROKER_URL" in capsys.readouterr().err
+
+
+def test_serve_runs_an_embedded_worker_only_without_a_broker(tmp_path):
+    local = Settings(storage_dir=tmp_path)
+    worker = embedded_worker(local)
+    assert isinstance(worker, EmbeddedWorker) and worker.mode == "process"
+    threaded = embedded_worker(local.model_copy(update={"embedded_worker": "thread"}))
+    assert isinstance(threaded, EmbeddedWorker) and threaded.mode == "thread"
+    assert embedded_worker(local.model_copy(update={"embedded_worker": "off"})) is None
+    assert embedded_worker(local.model_copy(update={"broker_url": "redis://r:6379/0"})) is None
+
+
+def test_serve_without_broker_refuses_when_the_worker_package_is_missing(monkeypatch, capsys):
+    """The API image ships no ``worker`` package: without a broker nothing would run jobs."""
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "worker" else find_spec(name)
+    )
+    assert main(["serve"]) == 2
+    error = capsys.readouterr().err
+    assert "worker package is not installed" in error and "DCSEG_BROKER_URL" in error
 
 
 def test_loopback_detection():

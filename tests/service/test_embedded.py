@@ -16,6 +16,7 @@ import httpx
 import pytest
 
 from dcseg.cli import main
+from dcseg.cli import serve as served
 from dcseg.client import ApiError, Client
 from jobstore.store import Store
 from service.main import create_app
@@ -135,8 +136,9 @@ def test_startup_sweep_requeues_unfinished_jobs(tmp_path, scene_tar):
 
 
 def test_thread_worker_picks_up_queued_jobs(tmp_path, scene_tar):
+    """``dcseg serve``'s app (:func:`dcseg.cli.serve.create_app`) runs the embedded worker."""
     settings = make_settings(tmp_path, embedded_worker="thread")
-    with TestClient(create_app(settings)) as client:
+    with TestClient(served.create_app(settings)) as client:
         upload = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR}).json()
         body = {
             "upload_id": upload["id"],

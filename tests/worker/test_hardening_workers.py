@@ -40,8 +40,9 @@ from tests.service.conftest import wait_for as wait_until
 from tests.worker.conftest import REPO, add_job
 from tests.worker.fakes import FakeStage, SilentStage, stuck_stages
 from tests.worker.test_celery_integration import REDIS_URL, _forget_queue, _redis_reachable
-from worker.execute import Stage, execute_job, read_manifest
+from worker.execute import execute_job, read_manifest
 from worker.local import EmbeddedWorker
+from worker.stage import Stage
 from worker.stages import default_stages
 
 
@@ -142,7 +143,8 @@ def test_unexpected_error_shows_clients_an_error_id_not_paths_or_urls(tmp_path, 
     assert secret in str(logged[0].exc_info[1])
 
 
-# Defect 3: `uvicorn service.main:app` never exited after SIGTERM while a job ran.
+# Defect 3: `uvicorn service.main:app` never exited after SIGTERM while a job ran (its
+# embedded worker is now `dcseg serve`'s app, `uvicorn dcseg.cli.serve:create_app --factory`).
 
 LONG_JOB = {"reconstruct": {"iterations": 100_000, "holdout": 0}}
 QUICK_JOB = {"reconstruct": {"iterations": 1, "holdout": 0}, "affinity": {"iterations": 1}}
@@ -152,7 +154,8 @@ QUICK_JOB = {"reconstruct": {"iterations": 1, "holdout": 0}, "affinity": {"itera
 def _start_uvicorn(
     tmp_path: Path, port: int, grace: float, log: IO[bytes]
 ) -> subprocess.Popen[bytes]:
-    """The API image's command, in its own process group, with its embedded worker."""
+    """Plain uvicorn serving ``dcseg serve``'s app, in its own process group, with its
+    embedded worker."""
     env = {
         **os.environ,
         "DCSEG_STORAGE_DIR": str(tmp_path / "data"),
@@ -165,7 +168,8 @@ def _start_uvicorn(
     for name in ("DCSEG_DATABASE_URL", "DCSEG_BROKER_URL"):
         env.pop(name, None)
     script = Path(sys.executable).with_name("uvicorn")
-    command = [str(script), "service.main:app", "--host", "127.0.0.1", "--port", str(port)]
+    command = [str(script), "dcseg.cli.serve:create_app", "--factory"]
+    command += ["--host", "127.0.0.1", "--port", str(port)]
     command += ["--log-level", "warning"]
     return subprocess.Popen(
         command, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, start_new_session=True

@@ -16,5 +16,6 @@ if ! command -v chromium >/dev/null && [ "$(id -u)" = 0 ] && command -v apt-get 
 fi
 
 echo "== ruff"; ruff check . && ruff format --check .
-echo "== mypy"; mypy dcseg tests benchmarks
+echo "== mypy"; mypy dcseg jobstore service worker tests benchmarks
+echo "== import-linter"; lint-imports  # the layers in pyproject.toml [tool.importlinter]
 echo "== pytest"; python -m pytest -q "$@"

@@ -28,7 +28,8 @@ from typing import Any, Literal
 
 from jobstore.settings import Settings
 from jobstore.store import Store
-from worker.execute import Stage, execute_job, worker_id_prefix
+from worker.execute import execute_job, worker_id_prefix
+from worker.stage import Stage
 
 logger = logging.getLogger(__name__)
 

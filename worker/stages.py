@@ -18,8 +18,8 @@ from dcseg.config import JobConfig
 from dcseg.progress import weighted
 from dcseg.stages import STAGES, Stage, StageRun, key_of
 from jobstore.contract import input_layout
-from worker.execute import Stage as WorkerStage
-from worker.execute import StageContext, StageOutcome
+from worker.stage import Stage as WorkerStage
+from worker.stage import StageContext, StageOutcome
 
 
 def job_config(config: Mapping[str, Any]) -> JobConfig:

@@ -20,7 +20,8 @@ from service.main import create_app
 from tests.s3server import S3Server, s3_server, s3_settings  # noqa: F401 (fixture)
 from tests.service.conftest import AUTH_A, AUTH_B, TAR, TestClient, assert_problem, state_of
 from tests.worker.fakes import FakeStage
-from worker.execute import StageContext, StageOutcome, execute_job
+from worker.execute import execute_job
+from worker.stage import StageContext, StageOutcome
 
 pytestmark = pytest.mark.integration
 

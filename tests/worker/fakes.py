@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from worker.execute import Stage, StageContext, StageOutcome
+from worker.stage import Stage, StageContext, StageOutcome
 
 
 @dataclass

@@ -21,7 +21,7 @@ from dcseg.io.captures.plan import CaptureMeta, plan_capture
 from dcseg.stages import RECONSTRUCT
 from jobstore.settings import Settings
 from tests.scenes.analytic import make_capture
-from worker.execute import StageContext
+from worker.stage import StageContext
 from worker.stages import LibraryStage
 
 

@@ -29,8 +29,10 @@ RUN pip install -r /tmp/api-requirements.txt
 COPY pyproject.toml README.md ./
 COPY dcseg ./dcseg
 COPY --from=viewer /src/dcseg/viewer/static/viewer.js ./dcseg/viewer/static/viewer.js
+# the API and what it shares with the workers (jobstore/); never worker/ (lint-imports checks
+# that service imports none of it)
+COPY jobstore ./jobstore
 COPY service ./service
-COPY worker ./worker
 RUN pip install --no-deps . \
     && python -c "import sys, service.main; assert 'torch' not in sys.modules" \
     && mkdir -p /data && chown dcseg:dcseg /data

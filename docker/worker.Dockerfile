@@ -39,7 +39,8 @@ RUN pip install --upgrade pip && pip install --index-url ${TORCH_INDEX} "${TORCH
 
 COPY pyproject.toml README.md ./
 COPY dcseg ./dcseg
-COPY service ./service
+# the workers and what they share with the API (jobstore/); never service/
+COPY jobstore ./jobstore
 COPY worker ./worker
 RUN pip install ".[cuda]" "psycopg[binary]>=3.1"
 

@@ -10,6 +10,8 @@ import tomllib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+import pytest
+
 from service.main import app
 from service.openapi import DEFAULT_PATH, render
 from tests.service.conftest import AUTH_A, assert_problem, state_of
@@ -71,6 +73,19 @@ def test_not_ready_is_a_problem(client, monkeypatch):
     monkeypatch.setattr(state.store, "ping", broken)
     body = assert_problem(client.get("/readyz"), 503)
     assert body["checks"]["database"].startswith("error")
+
+
+@pytest.mark.parametrize(
+    ("image", "packages"),
+    [("api", {"dcseg", "jobstore", "service"}), ("worker", {"dcseg", "jobstore", "worker"})],
+)
+def test_images_ship_their_layer_and_what_it_imports(image: str, packages: set[str]):
+    """The API image has no ``worker/`` and the worker image no ``service/`` (they never import
+    each other; lint-imports checks it): each copies and lets in exactly its packages."""
+    dockerfile = (REPO / f"docker/{image}.Dockerfile").read_text(encoding="utf-8")
+    ignore = (REPO / f"docker/{image}.Dockerfile.dockerignore").read_text(encoding="utf-8")
+    assert set(re.findall(r"^COPY (\w+) \./\1$", dockerfile, re.M)) == packages
+    assert set(re.findall(r"^!(\w+)/\*\*$", ignore, re.M)) == packages
 
 
 def test_api_image_requirements_cover_the_api_imports():

@@ -2,9 +2,9 @@
 
 Written into a run's output folder (see the README, "Outputs"):
 
-* ``instances.json``: one record per instance ``{id, label, label_id, score, n_gaussians,
-  centroid, bbox_min, bbox_max, n_views}`` plus the sha256 of the ``scene_labelled.ply`` it
-  indexes; ids start at 1.
+* ``instances.json``: one record per instance (the fields of
+  :class:`~dcseg.io.instance_record.InstanceRecord`) plus the sha256 of the
+  ``scene_labelled.ply`` it indexes; ids start at 1.
 * ``labels.json``: the vocabulary, ``{"labels": [{"id": i, "name": ...}, ...]}``.
 * ``masks/<stem>.png``: uint16 instance id per pixel, 0 = none.
 * ``labels/<stem>.png``: uint16 class index + 1 per pixel, 0 = none.
@@ -17,7 +17,7 @@ import colorsys
 import hashlib
 import json
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -26,22 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.io.images import write_png
+from dcseg.io.instance_record import InstanceRecord
 from dcseg.types import Vocabulary
-
-
-@dataclass(frozen=True)
-class InstanceRecord:
-    """One segmented object: a cluster of Gaussians and the class it was assigned."""
-
-    id: int
-    label: str | None
-    label_id: int
-    score: float
-    n_gaussians: int
-    centroid: list[float]
-    bbox_min: list[float]
-    bbox_max: list[float]
-    n_views: int
 
 
 def instance_records(

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 from datetime import datetime
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, get_type_hints
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 
+from dcseg.io.instance_record import InstanceRecord
 from dcseg.options import JobOptions, PresetName
 
 JobStatus = Literal["queued", "running", "succeeded", "failed", "canceling", "canceled"]
@@ -185,29 +187,48 @@ class InstanceLinks(BaseModel):
     """Export format -> the URL of this object's export in that format."""
 
 
-class InstancePublic(BaseModel):
+REQUIRED_RECORD_FIELDS = (
+    "id",
+    "label",
+    "label_id",
+    "score",
+    "n_gaussians",
+    "centroid",
+    "bbox_min",
+    "bbox_max",
+)
+"""The fields of :class:`InstanceRecord` the API has required since its first version. The
+others (``n_views`` and any field the record gains later) are optional, None when a job's
+``instances.json`` lacks them, so objects of jobs made before a field existed still list."""
+
+
+def instance_fields() -> dict[str, Any]:
+    """``create_model`` definitions of :class:`InstancePublic`'s fields before ``links``:
+    :class:`InstanceRecord`'s (in its order), the required ones first, then ``size``, then the
+    optional ones (the order responses have always had)."""
+    hints = get_type_hints(InstanceRecord)
+    names = [field.name for field in dataclasses.fields(InstanceRecord)]
+    required = {name: (hints[name], ...) for name in names if name in REQUIRED_RECORD_FIELDS}
+    optional = {name: (hints[name] | None, None) for name in names if name not in required}
+    # size: extent of the axis-aligned box per world axis (bbox_max - bbox_min, metres)
+    return {**required, "size": (list[float], ...), **optional}
+
+
+# An ``instances.json`` record and its size as a model, the record's fields taken from their one
+# declaration (type checkers see a plain BaseModel: they cannot follow create_model).
+if TYPE_CHECKING:
+    InstanceFields = BaseModel
+else:
+    InstanceFields = create_model("InstanceFields", **instance_fields())
+
+
+class InstancePublic(InstanceFields):
     """One segmented object: its record in ``segment/instances.json`` plus its size and links.
 
     Fields ``instances.json`` gains later are passed through unchanged."""
 
     model_config = ConfigDict(extra="allow")
 
-    id: int
-    """Instance id (``instance_id`` in ``scene_labelled.ply``); ids start at 1."""
-    label: str | None
-    """Class name; None = unlabelled."""
-    label_id: int
-    """Index of the class in ``labels.json``; -1 = unlabelled."""
-    score: float
-    """Confidence of the class."""
-    n_gaussians: int
-    centroid: list[float]
-    bbox_min: list[float]
-    bbox_max: list[float]
-    size: list[float]
-    """Extent of the axis-aligned box per world axis (``bbox_max - bbox_min``, metres)."""
-    n_views: int | None = None
-    """Visibility: the number of views in which the object covers at least one pixel."""
     links: InstanceLinks
 
 

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+from typing import get_type_hints
+
 import pytest
 
+from dcseg.io.instance_record import InstanceRecord
+from service.schemas import REQUIRED_RECORD_FIELDS, InstancePublic
 from tests.service.conftest import AUTH_A, AUTH_B, assert_problem
 from tests.service.segmented import instance_records, run_segmented_job, segment_files
 
@@ -133,3 +138,30 @@ def test_job_that_segmented_nothing_is_404(client, upload_id):
     job = run_segmented_job(client, upload_id, files={"other.txt": b"x"})
     body = assert_problem(client.get(f"/v1/jobs/{job}/instances", headers=AUTH_A), 404)
     assert body["type"].endswith("no-instances")
+
+
+def test_the_api_model_takes_every_field_of_the_record():
+    """``InstancePublic`` is built from ``InstanceRecord``: a field added to the record is served
+    without a second edit, optional unless the API has always required it."""
+    hints = get_type_hints(InstanceRecord)
+    names = [field.name for field in dataclasses.fields(InstanceRecord)]
+    assert set(REQUIRED_RECORD_FIELDS) <= set(names)
+    optional = [name for name in names if name not in REQUIRED_RECORD_FIELDS]
+    api = InstancePublic.model_fields
+    # the order responses have always had: required fields, size, optional ones, links
+    assert list(api) == [*REQUIRED_RECORD_FIELDS, "size", *optional, "links"]
+    assert "n_views" in optional
+    for name in names:
+        if name in REQUIRED_RECORD_FIELDS:
+            assert api[name].is_required() and api[name].annotation == hints[name]
+        else:
+            assert api[name].default is None and api[name].annotation == hints[name] | None
+
+
+def test_records_lacking_an_optional_field_or_with_unknown_ones_are_served():
+    record = {k: v for k, v in instance_records()[0].items() if k != "n_views"}
+    given = {**record, "size": [0.0, 0.0, 0.0], "links": {"self": "/x"}, "since": 2}
+    item = InstancePublic.model_validate(given)
+    body = item.model_dump(mode="json")
+    assert body["n_views"] is None and body["since"] == 2
+    assert {k: body[k] for k in record} == record

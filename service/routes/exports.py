@@ -74,17 +74,59 @@ def export_url(job_id: str, selection: exports.Selection) -> str:
 
 
 @dataclass(frozen=True)
-class Target:
-    """A checked export request: the run to read and the cache folder."""
+class Asked:
+    """An export request as a route receives it: who asks, for which job, and what."""
 
+    state: AppState
+    tenant: str
     job_id: str
-    run: exports.RunGetter
-    folder: FilePath
     selection: exports.Selection
 
 
-def _target(state: AppState, tenant: str, job_id: str, selection: exports.Selection) -> Target:
+def scene_asked(
+    job_id: str, fmt: Format, options: OptionsDep, state: StateDep, tenant: TenantDep
+) -> Asked:
+    """The whole scene's export (``/{job_id}/exports/{format}``)."""
+    return Asked(state, tenant, job_id, exports.Selection(fmt, None, options))
+
+
+def instance_asked(
+    job_id: str,
+    k: InstanceId,
+    fmt: Format,
+    options: OptionsDep,
+    state: StateDep,
+    tenant: TenantDep,
+) -> Asked:
+    """One object's export (``/{job_id}/instances/{k}/exports/{format}``)."""
+    return Asked(state, tenant, job_id, exports.Selection(fmt, k, options))
+
+
+SceneAsked = Annotated[Asked, Depends(scene_asked)]
+InstanceAsked = Annotated[Asked, Depends(instance_asked)]
+
+
+def file_name(name: str) -> str:
+    """The file of an export to download. A dependency rather than a route parameter so that
+    the OpenAPI document lists it after ``format``: a route's own parameters come first."""
+    return name
+
+
+FileName = Annotated[str, Depends(file_name)]
+
+
+@dataclass(frozen=True)
+class Target:
+    """A checked export request: the run to read and the cache folder."""
+
+    asked: Asked
+    run: exports.RunGetter
+    folder: FilePath
+
+
+def _target(asked: Asked) -> Target:
     """404 for an unknown job or instance, 409 for an unfinished job."""
+    state, tenant, job_id, selection = asked.state, asked.tenant, asked.job_id, asked.selection
     job = state.store.get_job(job_id, tenant)
     files = instances.finished_job(state.storage, tenant, job, job_id)
     records = instances.read_instances(files).get("instances", [])
@@ -92,11 +134,12 @@ def _target(state: AppState, tenant: str, job_id: str, selection: exports.Select
         instances.find_instance(records, job_id, selection.instance)
     run = exports.run_getter(state.storage, tenant, job_id, state.settings)
     folder = selection.folder(exports.cache_root(state.settings, job_id))
-    return Target(job_id, run, folder, selection)
+    return Target(asked, run, folder)
 
 
 def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
-    path, query = _path(target.job_id, target.selection), _query(target.selection)
+    selection = target.asked.selection
+    path, query = _path(target.asked.job_id, selection), _query(selection)
     files = [
         ArtifactPublic(
             name=f.name,
@@ -108,9 +151,9 @@ def _public(target: Target, done: exports.Done | None) -> dict[str, Any]:
         for f in (done.files if done else [])
     ]
     body = ExportPublic(
-        format=target.selection.fmt,
-        instance=target.selection.instance,
-        options=dict(target.selection.options),
+        format=selection.fmt,
+        instance=selection.instance,
+        options=dict(selection.options),
         status="succeeded" if done else "running",
         files=files,
         links=ExportLinks(self=path + query),
@@ -130,35 +173,35 @@ def _artifact(item: exports.ExportFile) -> artifacts.Artifact:
 
 
 def _failure(target: Target, failed: exports.Failed) -> ApiProblem:
-    extensions: dict[str, Any] = {"job_id": target.job_id}
+    extensions: dict[str, Any] = {"job_id": target.asked.job_id}
     if failed.errors:
         extensions["errors"] = failed.errors
     status = 500 if failed.slug == "export-error" else 422
     return ApiProblem(status, failed.detail, slug=failed.slug, **extensions)
 
 
-async def _serve(
-    state: AppState, tenant: str, exporter: exports.Exporter, job_id: str, sel: exports.Selection
-) -> Response:
-    target = await run_in_threadpool(_target, state, tenant, job_id, sel)
-    cached = await run_in_threadpool(exports.read_cached, target.folder, state.settings)
+async def _serve(asked: Asked, exporter: exports.Exporter) -> Response:
+    """The export's description: made (or being made, 202) on the first request, then cached."""
+    settings, sel = asked.state.settings, asked.selection
+    target = await run_in_threadpool(_target, asked)
+    cached = await run_in_threadpool(exports.read_cached, target.folder, settings)
     if cached is None:
         making = exporter.start(target.run, target.folder, sel)
         waited = asyncio.wrap_future(making)
         try:
-            uncached = await asyncio.wait_for(asyncio.shield(waited), state.settings.export_wait_s)
+            uncached = await asyncio.wait_for(asyncio.shield(waited), settings.export_wait_s)
         except TimeoutError:
             headers = {
-                "Retry-After": str(state.settings.retry_after_s),
-                "Location": export_url(job_id, sel),
+                "Retry-After": str(settings.retry_after_s),
+                "Location": export_url(asked.job_id, sel),
             }
             return JSONResponse(_public(target, None), status_code=202, headers=headers)
-        cached = await run_in_threadpool(exports.read_cached, target.folder, state.settings)
+        cached = await run_in_threadpool(exports.read_cached, target.folder, settings)
         cached = cached or uncached
     if isinstance(cached, exports.Failed):
         raise _failure(target, cached)
     if cached is None:
-        raise ApiProblem(500, "the export left no result", slug="export-error", job_id=job_id)
+        raise ApiProblem(500, "the export left no result", slug="export-error", job_id=asked.job_id)
     return JSONResponse(_public(target, cached))
 
 
@@ -169,18 +212,11 @@ EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
 
 
 @router.get("/{job_id}/exports/{format}", response_model=ExportPublic, responses=EXPORT_RESPONSES)
-async def scene_export(
-    job_id: str,
-    fmt: Format,
-    options: OptionsDep,
-    state: StateDep,
-    tenant: TenantDep,
-    exporter: ExporterDep,
-) -> Response:
+async def scene_export(asked: SceneAsked, exporter: ExporterDep) -> Response:
     """The whole scene in one format: made on the first request and cached. 202 with
     ``Retry-After`` while it is being made; 422 when the job cannot be exported so (or the
     export passed a limit), with the reason."""
-    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt, None, options))
+    return await _serve(asked, exporter)
 
 
 @router.get(
@@ -188,31 +224,39 @@ async def scene_export(
     response_model=ExportPublic,
     responses=EXPORT_RESPONSES,
 )
-async def instance_export(
-    job_id: str,
-    k: InstanceId,
-    fmt: Format,
-    options: OptionsDep,
-    state: StateDep,
-    tenant: TenantDep,
-    exporter: ExporterDep,
-) -> Response:
+async def instance_export(asked: InstanceAsked, exporter: ExporterDep) -> Response:
     """One object alone in one format (made on demand and cached, as the scene's)."""
-    return await _serve(state, tenant, exporter, job_id, exports.Selection(fmt, k, options))
+    return await _serve(asked, exporter)
 
 
-def _file(
-    state: AppState, tenant: str, job_id: str, sel: exports.Selection, name: str
-) -> artifacts.Artifact:
-    target = _target(state, tenant, job_id, sel)
-    cached = exports.read_cached(target.folder, state.settings)
+def _file(asked: Asked, name: str) -> artifacts.Artifact:
+    """A file of a made export; 404 before the export is made and for a name it lacks."""
+    sel = asked.selection
+    cached = exports.read_cached(_target(asked).folder, asked.state.settings)
     if not isinstance(cached, exports.Done):
-        url = export_url(job_id, sel)
+        url = export_url(asked.job_id, sel)
         raise ApiProblem(404, f"no {sel.fmt} export made yet; GET {url} first", slug="not-found")
     found = next((f for f in cached.files if f.name == name), None)
     if found is None:
         raise ApiProblem(404, f"the {sel.fmt} export has no file {name!r}", slug="not-found")
     return _artifact(found)
+
+
+def _download(
+    asked: Asked,
+    name: str,
+    range_header: str | None,
+    if_range: str | None,
+    if_none_match: str | None,
+) -> Response:
+    """``GET`` of an export's file: as artifacts (ETag, ``Range``, ``If-Range``)."""
+    found = _file(asked, name)
+    return send_file(found, _reader(found), range_header, if_range, if_none_match)
+
+
+def _head(asked: Asked, name: str, if_none_match: str | None) -> Response:
+    """``HEAD`` of an export's file: the headers of a whole download, no body."""
+    return send_headers(_file(asked, name), if_none_match)
 
 
 FILE_RESPONSES: dict[int | str, dict[str, Any]] = {
@@ -229,68 +273,46 @@ HEAD_RESPONSES: dict[int | str, dict[str, Any]] = {
 SCENE_FILE = "/{job_id}/exports/{format}/{name:path}"
 INSTANCE_FILE = "/{job_id}/instances/{k}/exports/{format}/{name:path}"
 
+# One route function per path and method: FastAPI names each operation (operationId, summary)
+# after its function, and a HEAD declared with its GET (``api_route``) would share the GET's
+# operationId, summary and Range parameters in the OpenAPI document.
+
 
 @router.get(SCENE_FILE, response_class=StreamingResponse, responses=FILE_RESPONSES)
 def download_scene_export(
-    job_id: str,
-    fmt: Format,
-    name: str,
-    options: OptionsDep,
-    state: StateDep,
-    tenant: TenantDep,
+    asked: SceneAsked,
+    name: FileName,
     range_header: RangeHeader = None,
     if_range: IfRange = None,
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """Download one file of a made scene export (ETag, ``Range``, as artifacts)."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt, None, options), name)
-    return send_file(found, _reader(found), range_header, if_range, if_none_match)
+    return _download(asked, name, range_header, if_range, if_none_match)
 
 
 @router.head(SCENE_FILE, response_class=Response, responses=HEAD_RESPONSES)
 def scene_export_headers(
-    job_id: str,
-    fmt: Format,
-    name: str,
-    options: OptionsDep,
-    state: StateDep,
-    tenant: TenantDep,
-    if_none_match: IfNoneMatch = None,
+    asked: SceneAsked, name: FileName, if_none_match: IfNoneMatch = None
 ) -> Response:
     """The headers of a whole download of a scene export's file, no body."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt, None, options), name)
-    return send_headers(found, if_none_match)
+    return _head(asked, name, if_none_match)
 
 
 @router.get(INSTANCE_FILE, response_class=StreamingResponse, responses=FILE_RESPONSES)
 def download_instance_export(
-    job_id: str,
-    k: InstanceId,
-    fmt: Format,
-    name: str,
-    options: OptionsDep,
-    state: StateDep,
-    tenant: TenantDep,
+    asked: InstanceAsked,
+    name: FileName,
     range_header: RangeHeader = None,
     if_range: IfRange = None,
     if_none_match: IfNoneMatch = None,
 ) -> Response:
     """Download one file of a made instance export (ETag, ``Range``, as artifacts)."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt, k, options), name)
-    return send_file(found, _reader(found), range_header, if_range, if_none_match)
+    return _download(asked, name, range_header, if_range, if_none_match)
 
 
 @router.head(INSTANCE_FILE, response_class=Response, responses=HEAD_RESPONSES)
 def instance_export_headers(
-    job_id: str,
-    k: InstanceId,
-    fmt: Format,
-    name: str,
-    options: OptionsDep,
-    state: StateDep,
-    tenant: TenantDep,
-    if_none_match: IfNoneMatch = None,
+    asked: InstanceAsked, name: FileName, if_none_match: IfNoneMatch = None
 ) -> Response:
     """The headers of a whole download of an instance export's file, no body."""
-    found = _file(state, tenant, job_id, exports.Selection(fmt, k, options), name)
-    return send_headers(found, if_none_match)
+    return _head(asked, name, if_none_match)

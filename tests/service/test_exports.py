@@ -117,6 +117,37 @@ def test_export_files_before_and_outside_the_export_are_404(env):
     assert_problem(client.get(f"/v1/jobs/{job}/instances/1/exports/ply/x", headers=AUTH_A), 404)
 
 
+@pytest.mark.parametrize("export", ["exports/ply", "instances/2/exports/ply"])
+def test_scene_and_instance_export_files_download_alike(env, export):
+    """The scene's and an object's export files share one GET and one HEAD implementation."""
+    client, job = env
+    body = client.get(f"/v1/jobs/{job}/{export}?colour=class", headers=AUTH_A).json()
+    url = body["files"][0]["url"]
+    assert url.startswith(f"/v1/jobs/{job}/{export}/") and url.endswith("?colour=class")
+    whole = client.get(url, headers=AUTH_A)
+    etag, size = whole.headers["etag"], len(whole.content)
+    part = client.get(url, headers={**AUTH_A, "Range": "bytes=1-4"})
+    assert part.status_code == 206 and part.content == whole.content[1:5]
+    stale = client.get(url, headers={**AUTH_A, "Range": "bytes=1-4", "If-Range": '"old"'})
+    assert stale.status_code == 200 and stale.content == whole.content
+    assert client.get(url, headers={**AUTH_A, "If-None-Match": etag}).status_code == 304
+    head = client.head(url, headers={**AUTH_A, "Range": "bytes=1-4"})
+    assert head.status_code == 200 and head.headers["content-length"] == str(size)
+    assert head.headers["etag"] == etag and head.content == b""
+    assert client.head(url, headers={**AUTH_A, "If-None-Match": etag}).status_code == 304
+    missing = url.replace(body["files"][0]["name"], "nope.ply")
+    assert client.head(missing, headers=AUTH_A).status_code == 404
+    # another option set is another export, not made yet
+    other = url.replace("colour=class", "colour=instance")
+    assert "GET " in assert_problem(client.get(other, headers=AUTH_A), 404)["detail"]
+    assert client.head(other, headers=AUTH_A).status_code == 404
+    bad = client.get(f"/v1/jobs/{job}/{export[:-3]}fbx/x?colour=red", headers=AUTH_A)
+    assert [e["path"] for e in assert_problem(bad, 422)["errors"]] == [
+        "query.colour",
+        "path.format",
+    ]
+
+
 def test_bad_format_instance_tenant_and_state(env):
     client, job = env
     bad = assert_problem(client.get(f"/v1/jobs/{job}/exports/fbx", headers=AUTH_A), 422)

@@ -107,6 +107,22 @@ def client(settings: Settings) -> Iterator[TestClient]:
 
 
 @pytest.fixture
+def make_client(tmp_path: Path) -> Iterator[Any]:
+    """``make_client(**settings)``: a started TestClient with those setting overrides."""
+    stack: list[TestClient] = []
+
+    def make(**overrides: Any) -> TestClient:
+        client = TestClient(create_app(make_settings(tmp_path, **overrides)))
+        client.__enter__()
+        stack.append(client)
+        return client
+
+    yield make
+    for client in reversed(stack):
+        client.__exit__(None, None, None)
+
+
+@pytest.fixture
 def upload_id(client: TestClient, scene_tar: bytes) -> str:
     response = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR})
     assert response.status_code == 201, response.text

@@ -279,6 +279,21 @@ def test_queue_down_answers_503(client, upload_id, queue, monkeypatch):
     assert [j["status"] for j in jobs] == ["failed"]
 
 
+def test_queue_failure_error_carries_no_broker_text(client, upload_id, queue, monkeypatch):
+    """Job errors carry raw exception text (storage paths, broker URLs): the enqueue failure
+    too. The failed job's error has a type and an error id, not the exception's text."""
+
+    def broken(job_id: str) -> None:
+        raise ConnectionError("Error 111 connecting to redis://:s3cret@10.0.0.7:6379/0")
+
+    monkeypatch.setattr(state_of(client).queue, "enqueue", broken)
+    assert_problem(submit(client, upload_id, options={}), 503)
+    job = client.get("/v1/jobs", headers=AUTH_A).json()["jobs"][0]
+    assert job["status"] == "failed" and job["error"]["type"] == "queue-unavailable"
+    assert job["error"]["error_id"] in job["error"]["detail"]
+    assert "redis" not in str(job["error"]) and "s3cret" not in str(job["error"])
+
+
 def test_no_keys_means_local_tenant(tmp_path):
     from service.main import create_app
     from tests.service.conftest import TestClient

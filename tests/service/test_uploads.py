@@ -9,12 +9,14 @@ import io
 import tarfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import cv2
 import pytest
 from sqlalchemy import func, select
 
-from jobstore.models import Upload
+from jobstore.models import IdempotencyKey, Job, Upload
+from service import uploads as service_uploads
 from tests.service.conftest import (
     AUTH_A,
     AUTH_B,
@@ -229,3 +231,26 @@ def test_digests_separate_capture_from_masks(client, scene_tar, scene_copy):
     reconstruct, validate = LibraryStage(RECONSTRUCT), LibraryStage(VALIDATE)
     assert reconstruct.key(config_a) == reconstruct.key(config_b)  # reused
     assert validate.key(config_a) != validate.key(config_b)  # re-checked
+
+
+def test_upload_deleted_while_a_job_is_created_answers_404_not_500(client, upload_id, monkeypatch):
+    """Defect: "deleting an upload while a job is created answers 500"; the delete lands
+    between the job's upload check and its insert: a precise 404, nothing half-made."""
+    state = state_of(client)
+    real_create = state.store.create_job
+
+    def delete_first(job: Job, **kwargs: Any) -> Job:
+        assert state.store.delete_upload(upload_id, "tenant-a") is not None
+        service_uploads.remove(state.settings.storage_dir / "uploads" / upload_id)
+        return real_create(job, **kwargs)
+
+    monkeypatch.setattr(state.store, "create_job", delete_first)
+    response = client.post(
+        "/v1/jobs", json={"upload_id": upload_id}, headers={**AUTH_A, "Idempotency-Key": "k"}
+    )
+    body = assert_problem(response, 404)
+    assert upload_id in body["detail"]
+    with state.store.session() as s:
+        assert s.scalar(select(func.count()).select_from(Job)) == 0
+        assert s.scalar(select(func.count()).select_from(IdempotencyKey)) == 0
+    assert client.get(f"/v1/uploads/{upload_id}", headers=AUTH_A).status_code == 404

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import time
 from datetime import timedelta
 
@@ -11,6 +12,8 @@ import pytest
 from dcseg.errors import InputError
 from jobstore.blobstore import LocalStorage
 from jobstore.contract import JobPaths
+from service.main import create_app
+from tests.service.conftest import AUTH_A, TAR, TestClient, make_settings, state_of, tar_bytes
 from tests.worker.conftest import add_job
 from tests.worker.fakes import FakeStage
 from worker.execute import execute_job
@@ -128,3 +131,26 @@ def test_worker_whose_job_was_taken_over_stops_without_writing(store, settings):
     job = store.get_job(job_id)
     assert job.status == "running" and job.worker == "new-worker"
     assert not (JobPaths(settings.storage_dir, job_id).output / "one").exists()
+
+
+def test_unexpected_error_shows_clients_an_error_id_not_paths_or_urls(tmp_path, scene, caplog):
+    """Defect 4: "Job errors carry raw exception text (storage paths, broker URLs)"."""
+    settings = make_settings(tmp_path)
+    secret = f"cannot write {settings.storage_dir.resolve()}/jobs/x via redis://:pw@10.0.0.5:6379/0"
+    with TestClient(create_app(settings)) as client:
+        upload = client.post("/v1/uploads", content=tar_bytes(scene), headers={**AUTH_A, **TAR})
+        body = {"upload_id": upload.json()["id"]}
+        job_id = client.post("/v1/jobs", json=body, headers=AUTH_A).json()["id"]
+        stage = FakeStage("one", fail=RuntimeError(secret))
+        with caplog.at_level(logging.ERROR, logger="worker.execute"):
+            status = execute_job(job_id, state_of(client).store, settings, stages=[stage])
+        assert status == "failed"
+        shown = client.get(f"/v1/jobs/{job_id}", headers=AUTH_A)
+        events = client.get(f"/v1/jobs/{job_id}/events", headers=AUTH_A)
+    error = shown.json()["error"]
+    for text in (shown.text, events.text):
+        assert str(tmp_path) not in text and "redis://" not in text and "Traceback" not in text
+    assert error["type"] == "internal" and error["error_id"] in error["detail"]
+    logged = [r for r in caplog.records if error["error_id"] in r.getMessage()]
+    assert logged and logged[0].exc_info is not None  # the full traceback stays server-side
+    assert secret in str(logged[0].exc_info[1])

@@ -1,4 +1,6 @@
-"""Issue 17 (service hardening): archive and upload validation limits, through the API."""
+"""Upload validation (:func:`service.uploads.extract_and_validate`) through the API: archive
+limits read before extracting, refused formats and names, and the pixel budget summed from
+image headers before anything is decoded."""
 
 from __future__ import annotations
 

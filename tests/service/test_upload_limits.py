@@ -1,6 +1,5 @@
-"""Issue 17, uploads: storage quotas, free space and ENOSPC (507), upload expiry, a bounded
-validation pool that leaves ``/healthz`` alone, idempotent uploads and expiring keys, and the
-delete-upload / create-job race."""
+"""Uploads within their limits (:mod:`service.uploads`): tenant quotas, free space and a full
+disk (507), upload expiry, and a bounded validation pool that leaves ``/healthz`` alone."""
 
 from __future__ import annotations
 
@@ -8,29 +7,25 @@ import errno
 import json
 import shutil
 import threading
-from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from datetime import timedelta
 from pathlib import Path
 from typing import IO, Any
 
 import anyio.to_thread
-import pytest
 from sqlalchemy import func, select, update
 
 import dcseg.io.archive
 from jobstore.contract import JobPaths
-from jobstore.models import IdempotencyKey, Job, Upload, utcnow
+from jobstore.models import Upload, utcnow
 from jobstore.settings import Settings
 from service import uploads as service_uploads
-from service.main import create_app
 from tests.service.conftest import (
     AUTH_A,
     AUTH_B,
     TAR,
     TestClient,
     assert_problem,
-    make_settings,
     state_of,
     wait_for,
 )
@@ -47,27 +42,8 @@ def _nothing_stored(client: TestClient) -> None:
         assert s.scalar(select(func.count()).select_from(Upload)) == 0
 
 
-@pytest.fixture
-def make_client(tmp_path: Path) -> Iterator[Any]:
-    """``make_client(**settings)``: a started TestClient with those setting overrides."""
-    stack: list[TestClient] = []
-
-    def make(**overrides: Any) -> TestClient:
-        client = TestClient(create_app(make_settings(tmp_path, **overrides)))
-        client.__enter__()
-        stack.append(client)
-        return client
-
-    yield make
-    for client in reversed(stack):
-        client.__exit__(None, None, None)
-
-
 def _upload(client: TestClient, body: bytes, **headers: str) -> Any:
     return client.post("/v1/uploads", content=body, headers={**AUTH_A, **TAR, **headers})
-
-
-# ----- defect 1: quotas, free space, ENOSPC, expiry -----
 
 
 def test_enospc_while_receiving_answers_507_and_stores_nothing(client, scene_tar, monkeypatch):
@@ -165,9 +141,6 @@ def test_unused_uploads_expire_and_uploads_of_jobs_stay(make_client, scene_tar):
         assert (storage / kept).is_dir()
 
 
-# ----- defect 2: a bounded validation pool; health never waits on the threadpool -----
-
-
 class _Gate:
     """A stand-in for ``extract_and_validate`` that holds its thread until released."""
 
@@ -216,134 +189,6 @@ def test_health_answers_while_upload_validations_saturate_the_pool(
             gate.release.set()
         assert [f.result(timeout=BOUND_S).status_code for f in held] == [201, 201]
     assert _upload(client, scene_tar).status_code == 201  # slots were given back
-
-
-# ----- defect 3: idempotent uploads, expiring keys -----
-
-
-def test_upload_honours_idempotency_key(client, scene_tar, scene):
-    """Defect: "uploads ignore Idempotency-Key"; same key + body replays, another body 422."""
-    first = _upload(client, scene_tar, **{"Idempotency-Key": "up-1"})
-    assert first.status_code == 201, first.text
-    again = _upload(client, scene_tar, **{"Idempotency-Key": "up-1"})
-    assert again.status_code == 201 and again.json() == first.json()
-    assert again.headers["idempotent-replayed"] == "true"
-    assert again.headers["location"] == first.headers["location"]
-    other = scene_tar + b"\0" * 1024  # tar padding: a different body of the same capture
-    body = assert_problem(_upload(client, other, **{"Idempotency-Key": "up-1"}), 422)
-    assert body["type"].endswith("idempotency-mismatch")
-    with state_of(client).store.session() as s:
-        assert s.scalar(select(func.count()).select_from(Upload)) == 1
-    uploads_dir = state_of(client).settings.storage_dir / "uploads"
-    assert [p.name for p in uploads_dir.iterdir()] == [first.json()["id"]]
-
-
-def test_upload_with_a_key_in_flight_answers_409(client, scene_tar, monkeypatch):
-    """Defect: uploads honour Idempotency-Key as jobs do: the same key while the first
-    request is still validating answers 409, and the first one still succeeds."""
-    gate = _Gate()
-    monkeypatch.setattr(service_uploads, "extract_and_validate", gate)
-    key = {"Idempotency-Key": "slow"}
-    with ThreadPoolExecutor(1) as pool:
-        first = pool.submit(_upload, client, scene_tar, **key)
-        try:
-            wait_for(lambda: gate.entered == 1, timeout=BOUND_S)
-            second = _upload(client, scene_tar, **key)
-        finally:
-            gate.release.set()
-        assert first.result(timeout=BOUND_S).status_code == 201
-    assert assert_problem(second, 409)["type"].endswith("idempotency-in-flight")
-
-
-def test_idempotency_keys_older_than_the_ttl_are_ignored_and_swept(make_client, scene_tar):
-    """Defect: "Idempotency records never expire"; past the TTL a key is new again and the
-    periodic sweep deletes the record."""
-    client = make_client(idempotency_ttl_s=3600.0, housekeeping_interval_s=3600.0)
-    upload = _upload(client, scene_tar).json()["id"]
-    key = {**AUTH_A, "Idempotency-Key": "job-1"}
-    first = client.post("/v1/jobs", json={"upload_id": upload}, headers=key)
-    assert first.status_code == 202, first.text
-    client.post(f"/v1/jobs/{first.json()['id']}:cancel", headers=AUTH_A)
-    store = state_of(client).store
-    with store.session() as s:
-        s.execute(update(IdempotencyKey).values(created_at=utcnow() - timedelta(hours=2)))
-    second = client.post("/v1/jobs", json={"upload_id": upload, "preset": "paper"}, headers=key)
-    assert second.status_code == 202, second.text  # not 422: the old record has expired
-    assert second.json()["id"] != first.json()["id"]
-    with store.session() as s:
-        s.execute(update(IdempotencyKey).values(created_at=utcnow() - timedelta(hours=2)))
-    assert store.idempotency_sweep(timedelta(hours=1)) == 1
-    with store.session() as s:
-        assert s.scalar(select(func.count()).select_from(IdempotencyKey)) == 0
-
-
-def test_housekeeping_sweeps_expired_idempotency_records(make_client, scene_tar):
-    """Defect: "Idempotency records never expire"; the periodic sweep deletes old ones."""
-    client = make_client(idempotency_ttl_s=3600.0, housekeeping_interval_s=0.05)
-    response = _upload(client, scene_tar, **{"Idempotency-Key": "old"})
-    assert response.status_code == 201
-    store = state_of(client).store
-    with store.session() as s:
-        assert s.scalar(select(func.count()).select_from(IdempotencyKey)) == 1
-        s.execute(update(IdempotencyKey).values(created_at=utcnow() - timedelta(hours=2)))
-
-    def swept() -> bool:
-        with store.session() as s:
-            return s.scalar(select(func.count()).select_from(IdempotencyKey)) == 0
-
-    wait_for(swept, timeout=BOUND_S)
-
-
-# ----- defect 4: deleting an upload while a job is created -----
-
-
-def test_upload_deleted_while_a_job_is_created_answers_404_not_500(client, upload_id, monkeypatch):
-    """Defect: "deleting an upload while a job is created answers 500"; the delete lands
-    between the job's upload check and its insert: a precise 404, nothing half-made."""
-    state = state_of(client)
-    real_create = state.store.create_job
-
-    def delete_first(job: Job, **kwargs: Any) -> Job:
-        assert state.store.delete_upload(upload_id, "tenant-a") is not None
-        service_uploads.remove(state.settings.storage_dir / "uploads" / upload_id)
-        return real_create(job, **kwargs)
-
-    monkeypatch.setattr(state.store, "create_job", delete_first)
-    response = client.post(
-        "/v1/jobs", json={"upload_id": upload_id}, headers={**AUTH_A, "Idempotency-Key": "k"}
-    )
-    body = assert_problem(response, 404)
-    assert upload_id in body["detail"]
-    with state.store.session() as s:
-        assert s.scalar(select(func.count()).select_from(Job)) == 0
-        assert s.scalar(select(func.count()).select_from(IdempotencyKey)) == 0
-    assert client.get(f"/v1/uploads/{upload_id}", headers=AUTH_A).status_code == 404
-
-
-def test_schema_v1_gains_uploads_stored_bytes(tmp_path):
-    """The quota's per-upload byte count is a new column: a v1 store migrates to v2 and its
-    old uploads count their archive size."""
-    from sqlalchemy import delete, insert, inspect
-
-    from jobstore.models import SCHEMA_VERSION, SchemaVersion
-    from jobstore.store import Store
-
-    store = Store(f"sqlite:///{tmp_path / 'v1.db'}")
-    store.init_schema()
-    with store.engine.begin() as conn:
-        conn.exec_driver_sql("ALTER TABLE uploads DROP COLUMN stored_bytes")
-        conn.execute(delete(SchemaVersion))
-        conn.execute(insert(SchemaVersion).values(version=1))
-        conn.exec_driver_sql("INSERT INTO tenants (id, created_at) VALUES ('t', '2026-01-01')")
-        conn.exec_driver_sql(
-            "INSERT INTO uploads (id, tenant_id, sha256, size, content_type, summary, "
-            "created_at) VALUES ('u', 't', '', 123, 'application/x-tar', '{}', '2026-01-01')"
-        )
-    assert store.init_schema() == SCHEMA_VERSION == 2
-    columns = {c["name"] for c in inspect(store.engine).get_columns("uploads")}
-    assert "stored_bytes" in columns
-    assert store.tenant_storage("t") == (123, [])
-    store.close()
 
 
 def test_full_disk_is_recognised_behind_wrapping_errors():

@@ -1,6 +1,6 @@
-"""Issue 17 review (shutdown and attempts): an open event stream must not hold the API's
-shutdown, the shutdown's waits share one deadline, shutdowns never consume attempts, and an
-interrupt never throws away a stage that finished."""
+"""Shutdown of the API and its embedded worker: an open event stream does not hold it, its
+waits share one deadline, plain uvicorn exits within it, shutdowns never consume attempts,
+and an interrupt never throws away a stage that finished."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import time
 from collections.abc import Iterator
 from datetime import timedelta
 from pathlib import Path
+from typing import IO
 
 import httpx
 import pytest
@@ -26,7 +27,15 @@ from jobstore.settings import Settings
 from jobstore.store import Store
 from service.main import shut_down
 from tests.service import test_databases
-from tests.service.conftest import AUTH_A, KEY_A, TAR, free_port, tar_bytes, wait_ready
+from tests.service.conftest import (
+    AUTH_A,
+    KEY_A,
+    TAR,
+    free_port,
+    make_settings,
+    tar_bytes,
+    wait_ready,
+)
 from tests.service.conftest import wait_for as wait_until
 from tests.worker.conftest import REPO, add_job
 from tests.worker.fakes import FakeStage, slow_stages, stuck_stages
@@ -279,3 +288,130 @@ def test_interrupt_after_a_stage_finished_keeps_the_stage(store, settings: Setti
     assert store.get_job(job_id).attempts == 0  # still not counted
     resumed = execute_job(job_id, store, settings, stages=[first, second])
     assert resumed == "succeeded" and first.runs == 1 and second.runs == 1
+
+
+# ----- 5. plain uvicorn exits within the shutdown grace -----
+
+
+LONG_JOB = {"reconstruct": {"iterations": 100_000, "holdout": 0}}
+
+
+QUICK_JOB = {"reconstruct": {"iterations": 1, "holdout": 0}, "affinity": {"iterations": 1}}
+"""Ends within seconds; the worker then idles."""
+
+
+def _start_uvicorn(
+    tmp_path: Path, port: int, grace: float, log: IO[bytes]
+) -> subprocess.Popen[bytes]:
+    """Plain uvicorn serving ``dcseg serve``'s app, in its own process group, with its
+    embedded worker."""
+    env = {
+        **os.environ,
+        "DCSEG_STORAGE_DIR": str(tmp_path / "data"),
+        "DCSEG_API_KEYS": f"tenant-a:{KEY_A}",
+        "DCSEG_SWEEP_INTERVAL_S": "0.3",
+        "DCSEG_SHUTDOWN_GRACE_S": str(grace),
+        "DCSEG_POLL_INTERVAL_S": "0.1",
+        "DCSEG_DEVICE": "cpu",
+    }
+    for name in ("DCSEG_DATABASE_URL", "DCSEG_BROKER_URL"):
+        env.pop(name, None)
+    script = Path(sys.executable).with_name("uvicorn")
+    command = [str(script), "dcseg.cli.serve:create_app", "--factory"]
+    command += ["--host", "127.0.0.1", "--port", str(port)]
+    command += ["--log-level", "warning"]
+    return subprocess.Popen(
+        command, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+    )
+
+
+def _submit(url: str, scene: Path, server: subprocess.Popen[bytes], log: Path, busy: bool) -> str:
+    """Upload the scene and submit a job; ``busy``: a long job, returned once it reconstructs;
+    otherwise a one-step job, returned once it ended (the worker then idles)."""
+    with httpx.Client(base_url=url, headers=AUTH_A, timeout=30) as client:
+        wait_ready(client, server, log)
+        upload = client.post("/v1/uploads", content=tar_bytes(scene), headers=TAR).json()
+        options = LONG_JOB if busy else QUICK_JOB
+        body = {"upload_id": upload["id"], "options": options}
+        job_id: str = client.post("/v1/jobs", json=body).json()["id"]
+
+        def reached() -> bool:
+            job = client.get(f"/v1/jobs/{job_id}").json()
+            if not busy:
+                return bool(job["status"] in ("succeeded", "failed"))
+            assert job["status"] in ("queued", "running"), job
+            return "reconstruct: step" in (job["progress"]["message"] or "")
+
+        wait_until(reached, timeout=120, every=0.1)
+    return job_id
+
+
+def _signal_and_wait(
+    process: subprocess.Popen[bytes], target: str, bound: float, log: Path
+) -> None:
+    """SIGTERM to the server (or its whole process group); fail unless it exits in ``bound``."""
+    try:
+        if target == "process group":  # Ctrl-C in a terminal, `timeout`, some init systems
+            os.killpg(process.pid, signal.SIGTERM)
+        else:
+            process.send_signal(signal.SIGTERM)
+        try:
+            process.wait(bound)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"uvicorn did not exit after SIGTERM:\n{log.read_text()[-3000:]}")
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait(10)
+
+
+@pytest.mark.parametrize(
+    ("target", "busy"),
+    [("process group", False), ("process group", True), ("server only", True)],
+    ids=["group-idle", "group-busy", "server-busy"],
+)
+def test_uvicorn_exits_within_the_shutdown_grace(tmp_path, scene, target, busy):
+    """Defect 3: "`uvicorn service.main:app` sent SIGTERM ... never exited"; shutdown must end
+    within a bounded time (``DCSEG_SHUTDOWN_GRACE_S``) whatever the embedded worker does (the
+    cause: the old stop flag, a multiprocessing Event, deadlocked ``set()`` once the idle child
+    waiting on it had died of the same signal), and an interrupted job stays resumable."""
+    grace = 3.0
+    port = free_port()
+    log = tmp_path / "uvicorn.log"
+    with log.open("wb") as output:
+        process = _start_uvicorn(tmp_path, port, grace, output)
+        try:
+            job_id = _submit(f"http://127.0.0.1:{port}", scene, process, log, busy)
+            time.sleep(1.0)  # past a few sweep intervals, as in the report
+        finally:  # generous margin: this asserts that it exits, not how fast
+            _signal_and_wait(process, target, grace + 60, log)
+    if not busy:
+        return
+    store = Store(f"sqlite:///{(tmp_path / 'data' / 'dcseg.db').resolve()}")
+    try:
+        job = store.get_job(job_id)
+    finally:
+        store.close()
+    # interrupted: its lease was expired, so the API's own sweep may already have requeued it
+    assert job is not None and job.status in ("running", "queued"), log.read_text()[-3000:]
+    finished = read_manifest(JobPaths(tmp_path / "data", job_id))["stages"]
+    assert [s["name"] for s in finished] == ["validate"]  # kept for the resumed run
+
+
+# ----- 6. an interrupted run uses no attempt -----
+
+
+def test_attempts_interrupted_run_is_not_counted(db_store, tmp_path):
+    """Defect 1: a run stopped by a worker shutdown is no crash; it must not use up an attempt."""
+    store = db_store
+    settings = make_settings(tmp_path, database_url=store.url, heartbeat_s=0.1)
+    (settings.storage_dir / "uploads" / "u1" / "data").mkdir(parents=True)
+    job_id = add_job(store)
+    for _ in range(4):  # more shutdowns than the cap allows crashes
+        status = execute_job(
+            job_id, store, settings, stages=[FakeStage("one")], interrupt=lambda: True
+        )
+        assert status == "interrupted"
+        assert store.get_job(job_id).attempts == 0
+        assert store.requeue_running() == [job_id]
+    assert execute_job(job_id, store, settings, stages=[FakeStage("one")]) == "succeeded"

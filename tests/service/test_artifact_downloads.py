@@ -1,4 +1,4 @@
-"""Issue 17, HTTP conformance of artifact downloads (RFC 9110): huge Range numbers, the range
+"""Artifact downloads (:mod:`service.artifacts`) as RFC 9110 says: huge Range numbers, the range
 unit's case, ``If-None-Match`` with ``*`` and weak tags, and ``HEAD``."""
 
 from __future__ import annotations

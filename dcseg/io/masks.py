@@ -6,7 +6,8 @@ A mask folder holds one entry per frame, matched to the capture by file stem. Ea
   ``segmentation`` is a COCO RLE (compressed string counts, or uncompressed list counts).
 * ``<stem>/``: SAM ``amg.py`` folder output, binary PNGs ``<id>.png`` (0/255) listed by the
   ``id`` column of ``metadata.csv``.
-* ``<stem>.png``: an integer label map (uint8/uint16), 0 = no mask, every other value = one mask.
+* ``<stem>.png``: an integer label map (uint8/uint16), 0 = no mask, every other value = one mask;
+  a palette PNG (DAVIS, SAM2, DEVA, VOC) is read by palette index, 0 and 255 (VOC's void) = none.
 * ``<stem>.npy``: an integer label map, negative = no mask, every other value = one mask.
 
 Masks are kept compact as COCO RLEs (``{"size": [H, W], "counts": bytes}``) and are only
@@ -29,6 +30,10 @@ from numpy.typing import NDArray
 from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection, entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest
+from dcseg.io.mask_formats.palette import PALETTE_VOID, is_palette_png, read_palette_indices
+from dcseg.io.mask_formats.rle import RLE, encode
+from dcseg.io.mask_formats.rle import decode_rle as _decode_rle
+from dcseg.io.mask_formats.rle import to_rle as _to_rle
 from dcseg.types import AgnosticMasks
 
 __all__ = [
@@ -43,7 +48,9 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-RLE = dict[str, Any]
+_encode = encode
+"""Kept under its old name: :mod:`dcseg.warmup` encodes its masks with it."""
+
 MASK_SUFFIXES = (".json", ".png", ".npy")
 METADATA_FILE = "metadata.csv"
 
@@ -71,7 +78,12 @@ def masks_from_dense(name: str, dense: NDArray[np.bool_], source: str = "") -> A
 
 
 def masks_from_label_map(
-    name: str, labels: NDArray[np.integer[Any]], *, none_below: int = 0, source: str = ""
+    name: str,
+    labels: NDArray[np.integer[Any]],
+    *,
+    none_below: int = 0,
+    void: int | None = None,
+    source: str = "",
 ) -> AgnosticMasks:
     """Turn an integer label map into one mask per distinct value ``>= none_below``.
 
@@ -80,6 +92,7 @@ def masks_from_label_map(
         labels: ``[H, W]`` integer label map.
         none_below: values below this mean "no mask" (0 for ``.npy`` maps where negative = none,
             1 for PNG maps where 0 = none).
+        void: a value that is no mask either (a palette PNG's 255, VOC's boundaries).
         source: the file the map came from.
 
     Returns:
@@ -88,7 +101,7 @@ def masks_from_label_map(
     if labels.ndim != 2:
         raise ValueError(f"label map must be [H, W], got shape {labels.shape}")
     values = np.unique(labels)
-    rles = tuple(_encode(labels == v) for v in values if v >= none_below)
+    rles = tuple(_encode(labels == v) for v in values if v >= none_below and v != void)
     return AgnosticMasks(name, int(labels.shape[0]), int(labels.shape[1]), rles, source)
 
 
@@ -236,10 +249,10 @@ def _read_entry(entry: Path, stem: str, root: Path, size: tuple[int, int] | None
     elif entry.suffix.lower() == ".json":
         masks = _read_json(entry, stem, shown, size)
     else:
-        labels, none_below = _read_label_map(entry, root)
+        labels, none_below, void = _read_label_map(entry, root)
         if size is not None:
             labels = resize_nearest(labels, size)
-        masks = masks_from_label_map(stem, labels, none_below=none_below, source=shown)
+        masks = masks_from_label_map(stem, labels, none_below=none_below, void=void, source=shown)
     return masks if size is None else resize_masks(masks, size)
 
 
@@ -295,73 +308,6 @@ def _size_mismatch(i: int, got: list[int], first: list[int]) -> str:
         f"record {i}: RLE size {got[1]}x{got[0]} (WxH) disagrees with {first[1]}x{first[0]} "
         "of the other records"
     )
-
-
-def _to_rle(seg: Any) -> tuple[RLE | None, str]:
-    """A validated compressed RLE from a COCO segmentation, or None and the reason."""
-    if not isinstance(seg, dict) or "size" not in seg or "counts" not in seg:
-        return None, "segmentation must be a COCO RLE with 'size' and 'counts'"
-    hw = seg["size"]
-    if not (isinstance(hw, list) and len(hw) == 2 and all(_is_count(v) for v in hw)):
-        return None, f"RLE size must be [height, width], got {hw!r}"
-    height, width = hw
-    counts = seg["counts"]
-    if isinstance(counts, list):
-        runs = np.asarray(counts) if all(_is_count(c) for c in counts) else None
-    elif isinstance(counts, str | bytes):
-        raw = counts.encode("utf-8") if isinstance(counts, str) else counts
-        runs = _decode_counts(raw)  # non-ASCII bytes are >= 128 and are rejected
-    else:
-        return None, f"RLE counts must be a string or a list, got {type(counts).__name__}"
-    if runs is None or int(np.sum(runs)) != height * width:
-        return None, f"RLE counts are corrupt (they do not cover the {width}x{height} mask)"
-    if isinstance(counts, list):
-        return mask_util.frPyObjects(seg, height, width), ""
-    return {"size": [height, width], "counts": raw}, ""
-
-
-def _is_count(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
-def _decode_counts(counts: bytes) -> NDArray[np.int64] | None:
-    """Run lengths of a COCO compressed RLE string (pycocotools ``rleFrString``), or None.
-
-    Vectorised: every character holds 5 bits of a value, with 0x20 = "more characters follow"
-    and 0x10 on the last character = negative; values from the fourth on are deltas to the
-    value two places back. Returns None when the string is malformed or a run is negative.
-    """
-    chars = np.frombuffer(counts, dtype=np.uint8).astype(np.int64) - 48
-    if chars.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    if chars.min() < 0 or chars.max() >= 64 or chars[-1] & 0x20:
-        return None
-    ends = np.flatnonzero((chars & 0x20) == 0)
-    starts = np.concatenate(([0], ends[:-1] + 1))
-    lengths = ends - starts + 1
-    if lengths.max() > 12:
-        return None
-    shift = 5 * (np.arange(chars.size) - np.repeat(starts, lengths))
-    values = np.add.reduceat((chars & 0x1F) << shift, starts)
-    values -= np.where(chars[ends] & 0x10, 1 << (5 * lengths), 0)
-    runs = values.copy()
-    runs[1::2] = np.cumsum(values[1::2])
-    runs[2::2] = np.cumsum(values[2::2])
-    return runs if runs.min() >= 0 else None
-
-
-def _decode_rle(rle: RLE) -> NDArray[np.bool_]:
-    """Decode one validated compressed RLE into an ``[H, W]`` boolean mask.
-
-    Done in numpy rather than ``pycocotools.mask.decode``, which warns under numpy 2 and does
-    not bounds-check its input.
-    """
-    height, width = (int(v) for v in rle["size"])
-    runs = _decode_counts(rle["counts"])
-    if runs is None or int(runs.sum()) != height * width:
-        raise ValueError(f"corrupt RLE counts for a {width}x{height} mask")
-    on = (np.arange(runs.size) % 2).astype(np.bool_)
-    return np.repeat(on, runs).reshape(width, height).T
 
 
 # --------------------------------------------------------------------------- SAM PNG folder
@@ -438,19 +384,21 @@ def _read_binary_png(path: Path, root: Path) -> NDArray[np.bool_]:
 # --------------------------------------------------------------------------- label maps
 
 
-def _read_label_map(path: Path, root: Path) -> tuple[NDArray[np.integer[Any]], int]:
-    """An integer label map and the value below which pixels have no mask."""
+def _read_label_map(path: Path, root: Path) -> tuple[NDArray[np.integer[Any]], int, int | None]:
+    """An integer label map, the value below which pixels have no mask, and a void value."""
     shown = display_path(path, root)
+    if path.suffix.lower() == ".png" and is_palette_png(path):
+        return read_palette_indices(path, root=root), 1, PALETTE_VOID
     if path.suffix.lower() == ".png":
         image = read_image(path, root=root)
         if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
             raise InputError.single(shown, _label_png_reason(image))
-        return image, 1
+        return image, 1, None
     labels = _load_npy(path, shown)
     if labels.ndim != 2 or labels.dtype.kind not in "iu":
         reason = f"expected a 2D integer label map, got {labels.ndim}D {labels.dtype}"
         raise InputError.single(shown, reason)
-    return labels, 0
+    return labels, 0, None
 
 
 def _label_png_reason(image: NDArray[Any]) -> str:
@@ -467,12 +415,6 @@ def _load_npy(path: Path, shown: str) -> NDArray[Any]:
 
 
 # --------------------------------------------------------------------------- small helpers
-
-
-def _encode(mask: NDArray[Any]) -> RLE:
-    """Compressed COCO RLE (bytes counts) of one ``[H, W]`` mask."""
-    rle: RLE = mask_util.encode(np.asfortranarray(mask, dtype=np.uint8))
-    return {"size": [int(v) for v in rle["size"]], "counts": rle["counts"]}
 
 
 def _log_dropped(name: str, n_dropped: int) -> None:

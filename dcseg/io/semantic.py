@@ -2,7 +2,8 @@
 
 A semantic-map folder holds one single-channel class map per frame, matched by file stem:
 
-* ``<stem>.png`` uint8 (255 = unlabelled) or uint16 (65535 = unlabelled);
+* ``<stem>.png`` uint8 (255 = unlabelled) or uint16 (65535 = unlabelled); a palette PNG (VOC,
+  DEVA) is read by palette index, 255 = unlabelled;
 * ``<stem>.npy`` integer (negative = unlabelled).
 
 Values index into a :class:`~dcseg.types.Vocabulary`, read from ``.txt`` (one class name per
@@ -23,6 +24,7 @@ from numpy.typing import NDArray
 from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection, entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest, write_image
+from dcseg.io.mask_formats.palette import is_palette_png, read_palette_indices
 from dcseg.types import SemanticMap, Vocabulary
 
 __all__ = [
@@ -250,6 +252,8 @@ def _read_class_map(path: Path, root: Path, n_classes: int) -> NDArray[np.int32]
 
 
 def _read_png_map(path: Path, root: Path, shown: str) -> NDArray[Any]:
+    if is_palette_png(path):
+        return read_palette_indices(path, root=root)
     image = read_image(path, root=root)
     if image.ndim != 2:
         reason = f"expected a single-channel class map, got {image.shape[2]} channels"

@@ -9,7 +9,8 @@ Supported layouts (see each module's docstring for the details):
 * ``record3d``: Record3D's ``.r3d`` export, ``metadata`` + ``rgbd/`` (:mod:`.record3d`);
 * ``record3d-exr``: Record3D's "EXR + JPG" export, ``metadata.json`` + ``rgb/`` + ``depth/``;
 * ``polycam``: Polycam's raw data export, ``keyframes/`` (:mod:`.polycam`);
-* ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`).
+* ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`);
+* ``tum``: TUM RGB-D, ``rgb.txt`` + ``depth.txt`` + ``groundtruth.txt`` (:mod:`.tum`).
 
 Example:
     >>> capture = read_capture("scan.zip", CaptureOptions(stride=5, size=(640, 480)))
@@ -38,6 +39,7 @@ from dcseg.io.captures import (
     replica,
     scannet,
     sevenscenes,
+    tum,
 )
 from dcseg.io.captures.common import FrameSpec, Listing, load_capture, read_colour, rel, select
 from dcseg.io.captures.plan import CaptureMeta, CapturePlan, plan_capture
@@ -72,6 +74,7 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "record3d-exr": (record3d.matches_exr, record3d.list_exr_frames, "metadata.json+rgb/+depth/"),
     "polycam": (polycam.matches, polycam.list_frames, "keyframes/images+cameras/"),
     "7scenes": (sevenscenes.matches, sevenscenes.list_frames, "frame-*.color.*"),
+    "tum": (tum.matches, tum.list_frames, "rgb.txt+depth.txt"),
 }
 """Layout name -> (detector, frame lister, marker shown in messages), in detection order."""
 
@@ -84,7 +87,8 @@ def detect_layout(folder: Path) -> str:
 
     Returns:
         One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
-        ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``).
+        ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``,
+        ``"tum"``).
 
     Raises:
         InputError: no layout's markers are found.

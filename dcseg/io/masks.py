@@ -10,6 +10,10 @@ A mask folder holds one entry per frame, matched to the capture by file stem. Ea
   a palette PNG (DAVIS, SAM2, DEVA, VOC) is read by palette index, 0 and 255 (VOC's void) = none.
 * ``<stem>.npy``: an integer label map, negative = no mask, every other value = one mask.
 
+The whole folder may instead be one panoptic source (COCO panoptic JSON + PNGs, or per-frame
+PNG + ``segments_info`` JSON pairs; :mod:`dcseg.io.mask_formats.panoptic`): every segment is a
+mask.
+
 Masks are kept compact as COCO RLEs (``{"size": [H, W], "counts": bytes}``) and are only
 decoded on demand, one frame (or one mask) at a time. Empty masks are dropped.
 """
@@ -19,7 +23,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +34,9 @@ from numpy.typing import NDArray
 from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection, entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest
+from dcseg.io.mask_formats import COCO_PANOPTIC, PANOPTIC_PAIRS, MaskLayout, detect_masks
 from dcseg.io.mask_formats.palette import PALETTE_VOID, is_palette_png, read_palette_indices
+from dcseg.io.mask_formats.panoptic import read_panoptic_masks
 from dcseg.io.mask_formats.rle import RLE, encode
 from dcseg.io.mask_formats.rle import decode_rle as _decode_rle
 from dcseg.io.mask_formats.rle import to_rle as _to_rle
@@ -191,14 +197,24 @@ def write_agnostic_json(path: Path, masks: AgnosticMasks) -> None:
 
 # --------------------------------------------------------------------------- folder reader
 
+_LayoutReader = Callable[
+    [MaskLayout, tuple[int, int] | None, FrameSelection | None], dict[str, AgnosticMasks]
+]
+_LAYOUT_READERS: dict[str, _LayoutReader] = {
+    COCO_PANOPTIC: read_panoptic_masks,
+    PANOPTIC_PAIRS: read_panoptic_masks,
+}
+"""Readers of the layouts that are not one entry per frame."""
+
 
 def read_agnostic_masks(
     folder: Path, *, size: tuple[int, int] | None = None, frames: FrameSelection | None = None
 ) -> dict[str, AgnosticMasks]:
-    """Read every frame's class-agnostic masks from a folder (formats: see the module docstring).
+    """Read every frame's class-agnostic masks from a folder (formats: see the module docstring),
+    in the format :func:`~dcseg.io.mask_formats.detect_masks` finds there.
 
     Args:
-        folder: the mask folder.
+        folder: the mask folder (or a COCO JSON file).
         size: optional target ``(width, height)``; masks are rescaled with nearest neighbour.
         frames: read only these frames' masks (a run's keyframes); None = every entry.
 
@@ -210,8 +226,10 @@ def read_agnostic_masks(
     Raises:
         InputError: listing every problem found (file and reason).
     """
-    if not folder.is_dir():
-        raise InputError.single(str(folder), "mask folder not found (or not a folder)")
+    layout = detect_masks(folder)
+    whole = _LAYOUT_READERS.get(layout.kind)
+    if whole is not None:
+        return whole(layout, size, frames)
     entries, problems = _mask_entries(folder)
     if frames is not None:
         entries, extra = frames.pick(entries, folder, "masks")

@@ -6,6 +6,9 @@ A semantic-map folder holds one single-channel class map per frame, matched by f
   DEVA) is read by palette index, 255 = unlabelled;
 * ``<stem>.npy`` integer (negative = unlabelled).
 
+The folder may instead be a panoptic source (:mod:`dcseg.io.mask_formats.panoptic`): each
+segment's category is the class of its pixels.
+
 Values index into a :class:`~dcseg.types.Vocabulary`, read from ``.txt`` (one class name per
 line) or ``.json`` (a list of strings). In memory maps are int32 with ``-1`` = unlabelled.
 """
@@ -24,7 +27,14 @@ from numpy.typing import NDArray
 from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection, entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest, write_image
+from dcseg.io.mask_formats import (
+    COCO_PANOPTIC,
+    PANOPTIC_PAIRS,
+    PER_FRAME,
+    detect_masks,
+)
 from dcseg.io.mask_formats.palette import is_palette_png, read_palette_indices
+from dcseg.io.mask_formats.panoptic import iter_panoptic_classes
 from dcseg.types import SemanticMap, Vocabulary
 
 __all__ = [
@@ -177,8 +187,17 @@ def iter_semantic_maps(
     Raises:
         InputError: the folder does not exist.
     """
-    if not folder.is_dir():
+    if not folder.is_dir() and not folder.is_file():
         raise InputError.single(str(folder), "semantic map folder not found (or not a folder)")
+    layout = detect_masks(folder)
+    if layout.kind in (COCO_PANOPTIC, PANOPTIC_PAIRS):
+        yield from iter_panoptic_classes(layout, vocabulary, size, frames)
+        return
+    if layout.kind != PER_FRAME:
+        reason = (
+            f"{layout.kind} annotations are class-agnostic masks (--agnostic-masks), not class maps"
+        )
+        raise InputError.single(display_path(folder, folder.parent), reason)
     entries, problems = _map_entries(folder)
     if frames is not None:
         entries, extra = frames.pick(entries, folder, "class maps")

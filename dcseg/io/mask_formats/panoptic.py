@@ -1,0 +1,286 @@
+"""Panoptic segmentations (detectron2, Mask2Former, OneFormer, COCO panoptic): PNG + segments.
+
+A panoptic PNG stores a segment id per pixel as ``id = R + 256 G + 256^2 B`` (panopticapi's
+``rgb2id``; a single-channel PNG holds the id itself), 0 = void. Each id is described by a
+``segments_info`` entry with ``id`` and ``category_id`` (``isthing`` and the rest are not
+needed). One source feeds both readers: every segment is a class-agnostic mask, and its category
+is the class of its pixels.
+
+Categories map to the vocabulary by name when the COCO panoptic JSON lists ``categories``
+(``id``, ``name``); otherwise ``category_id`` is the vocabulary index itself (detectron2's
+contiguous ids).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dcseg.errors import InputError, Problem
+from dcseg.io.folders import FrameSelection
+from dcseg.io.images import display_path, read_image, resize_nearest
+from dcseg.io.mask_formats import COCO_PANOPTIC, MaskLayout, load_json
+from dcseg.io.mask_formats.rle import encode
+from dcseg.types import AgnosticMasks, SemanticMap, Vocabulary
+
+__all__ = ["iter_panoptic_classes", "read_panoptic_masks"]
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """One frame's panoptic PNG and the JSON holding its ``segments_info``.
+
+    ``coco``: ``segments`` is the annotation's raw ``segments_info`` (COCO panoptic); else the
+    per-frame JSON is parsed only when its frame is read.
+    """
+
+    png: Path
+    info: Path
+    coco: bool = False
+    segments: Any = None
+
+
+def read_panoptic_masks(
+    layout: MaskLayout, size: tuple[int, int] | None, frames: FrameSelection | None
+) -> dict[str, AgnosticMasks]:
+    """Every segment of every (selected) frame as one class-agnostic mask, in
+    ``segments_info`` order.
+
+    Raises:
+        InputError: listing every problem found (file, segment and reason).
+    """
+    listed, problems = _frames(layout, frames)
+    out: dict[str, AgnosticMasks] = {}
+    for stem, frame in sorted(listed.items()):
+        try:
+            ids, segments = _read_frame(frame, layout.root, size)
+        except InputError as err:
+            problems.extend(err.problems)
+            continue
+        rles = tuple(encode(ids == i) for i in segments if (ids == i).any())
+        shown = display_path(frame.png, layout.root)
+        out[stem] = AgnosticMasks(stem, int(ids.shape[0]), int(ids.shape[1]), rles, shown)
+    if problems:
+        raise InputError(problems)
+    return out
+
+
+def iter_panoptic_classes(
+    layout: MaskLayout,
+    vocabulary: Vocabulary,
+    size: tuple[int, int] | None,
+    frames: FrameSelection | None,
+) -> Iterator[SemanticMap | Problem]:
+    """Every (selected) frame's class map, ``-1`` on void pixels; a problem in place of a
+    frame that cannot be read."""
+    listed, problems = _frames(layout, frames)
+    yield from problems
+    by_name = _category_classes(layout, vocabulary)
+    for stem, frame in sorted(listed.items()):
+        try:
+            ids, segments = _read_frame(frame, layout.root, size)
+            classes = _classes(ids, segments, by_name, vocabulary, frame, layout.root)
+        except InputError as err:
+            yield from err.problems
+            continue
+        yield SemanticMap(stem, classes, display_path(frame.png, layout.root))
+
+
+# --------------------------------------------------------------------------- listing
+
+
+def _frames(
+    layout: MaskLayout, frames: FrameSelection | None
+) -> tuple[dict[str, _Frame], list[Problem]]:
+    """The frames by stem (only the selected ones), and the problems of the listing."""
+    if layout.kind == COCO_PANOPTIC:
+        listed, problems = _coco_frames(layout)
+    else:
+        listed, problems = _pair_frames(layout)
+    if frames is not None:
+        paths = {stem: frame.png for stem, frame in listed.items()}
+        kept, extra = frames.pick(paths, layout.path, "panoptic masks")
+        listed = {stem: listed[stem] for stem in kept}
+        problems.extend(extra)
+    return listed, problems
+
+
+def _coco_frames(layout: MaskLayout) -> tuple[dict[str, _Frame], list[Problem]]:
+    """COCO panoptic: ``annotations[i].file_name`` beside the JSON or in the folder named
+    after it (``panoptic_val2017.json`` + ``panoptic_val2017/``)."""
+    assert layout.index is not None
+    shown = display_path(layout.index, layout.root)
+    folders = (layout.index.parent / layout.index.stem, layout.index.parent)
+    listed: dict[str, _Frame] = {}
+    problems: list[Problem] = []
+    for i, annotation in enumerate(layout.data["annotations"]):
+        name = annotation.get("file_name") if isinstance(annotation, dict) else None
+        if not isinstance(name, str) or Path(name).name != name or not name:
+            reason = f"annotations[{i}].file_name must be a PNG file name, got {name!r}"
+            problems.append(Problem(shown, reason))
+            continue
+        png = next((f / name for f in folders if (f / name).is_file()), None)
+        stem = Path(name).stem
+        if png is None:
+            where = " or ".join(display_path(f, layout.root) for f in folders)
+            problems.append(Problem(shown, f"annotations[{i}]: {name} not found in {where}"))
+        elif stem in listed:
+            problems.append(Problem(shown, f"annotations[{i}]: frame {stem!r} is listed twice"))
+        else:
+            listed[stem] = _Frame(png, layout.index, True, annotation.get("segments_info"))
+    return listed, problems
+
+
+def _pair_frames(layout: MaskLayout) -> tuple[dict[str, _Frame], list[Problem]]:
+    """Per-frame pairs: ``<stem>.png`` with ``<stem>.json``; either alone is a problem."""
+    files = [p for p in sorted(layout.path.iterdir()) if not p.name.startswith(".")]
+    pngs = {p.stem: p for p in files if p.suffix.lower() == ".png" and p.is_file()}
+    infos = {p.stem: p for p in files if p.suffix.lower() == ".json" and p.is_file()}
+    problems = [
+        Problem(display_path(pngs[s], layout.root), f"panoptic PNG without its {s}.json")
+        for s in sorted(set(pngs) - set(infos))
+    ]
+    problems += [
+        Problem(display_path(infos[s], layout.root), f"segments_info without its {s}.png")
+        for s in sorted(set(infos) - set(pngs))
+    ]
+    return {s: _Frame(pngs[s], infos[s]) for s in sorted(set(pngs) & set(infos))}, problems
+
+
+# --------------------------------------------------------------------------- one frame
+
+
+def _read_frame(
+    frame: _Frame, root: Path, size: tuple[int, int] | None
+) -> tuple[NDArray[np.int64], dict[int, int]]:
+    """The id map (rescaled to ``size``) and ``{segment id: category_id}``.
+
+    Raises:
+        InputError: malformed ``segments_info``, an unreadable PNG, or an id in the PNG that
+            ``segments_info`` does not describe.
+    """
+    raw = frame.segments if frame.coco else load_json(frame.info, root)
+    shown_png = display_path(frame.png, root)
+    segments = _segments(raw, frame, root)
+    ids = _panoptic_ids(frame.png, root)
+    present = np.unique(ids)
+    unknown = [int(i) for i in present if i != 0 and int(i) not in segments]
+    if unknown:
+        described = ", ".join(
+            f"{i} (RGB {i % 256},{i // 256 % 256},{i // 65536})" for i in unknown[:5]
+        )
+        more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
+        reason = (
+            f"panoptic id {described}{more} not in the segments_info of "
+            f"{display_path(frame.info, root)}"
+        )
+        raise InputError.single(shown_png, reason)
+    if size is not None:
+        ids = resize_nearest(ids, size)
+    return ids, segments
+
+
+def _segments(raw: Any, frame: _Frame, root: Path) -> dict[int, int]:
+    """``{id: category_id}`` from a ``segments_info`` list (or an object holding one)."""
+    shown = display_path(frame.info, root)
+    where = f"segments_info of {frame.png.name}" if frame.coco else "segments_info"
+    if isinstance(raw, dict) and not frame.coco:
+        raw = raw.get("segments_info")
+    if not isinstance(raw, list):
+        raise InputError.single(shown, f"{where} must be a list, got {type(raw).__name__}")
+    out: dict[int, int] = {}
+    problems: list[Problem] = []
+    for i, segment in enumerate(raw):
+        bad = [
+            Problem(shown, f"{where}[{i}].{key} must be a non-negative integer, got {value!r}")
+            for key in ("id", "category_id")
+            if not _is_index(value := segment.get(key) if isinstance(segment, dict) else None)
+        ]
+        if not bad and segment["id"] in out:
+            bad.append(Problem(shown, f"{where}[{i}].id {segment['id']} is repeated"))
+        problems += bad
+        if not bad:
+            out[segment["id"]] = segment["category_id"]
+    if problems:
+        raise InputError(problems)
+    return out
+
+
+def _is_index(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _panoptic_ids(path: Path, root: Path) -> NDArray[np.int64]:
+    """Segment ids of a panoptic PNG: ``R + 256 G + 256^2 B``, or a single-channel id map."""
+    image = read_image(path, root=root)
+    if image.ndim == 2:
+        return image.astype(np.int64)
+    if image.shape[2] != 3:
+        channels = image.shape[2]
+        reason = f"expected an RGB panoptic PNG (id = R + 256 G + 256^2 B), got {channels} channels"
+        raise InputError.single(display_path(path, root), reason)
+    rgb = image.astype(np.int64)
+    ids: NDArray[np.int64] = rgb[..., 0] + 256 * rgb[..., 1] + 65536 * rgb[..., 2]
+    return ids
+
+
+# --------------------------------------------------------------------------- classes
+
+
+def _category_classes(layout: MaskLayout, vocabulary: Vocabulary) -> dict[int, str] | None:
+    """COCO ``categories``: ``{id: name}``, or None when the JSON lists none."""
+    categories = layout.data.get("categories") if isinstance(layout.data, dict) else None
+    if not isinstance(categories, list):
+        return None
+    return {
+        c["id"]: str(c.get("name"))
+        for c in categories
+        if isinstance(c, dict) and isinstance(c.get("id"), int)
+    }
+
+
+def _classes(
+    ids: NDArray[np.int64],
+    segments: dict[int, int],
+    by_name: dict[int, str] | None,
+    vocabulary: Vocabulary,
+    frame: _Frame,
+    root: Path,
+) -> NDArray[np.int32]:
+    """The class of every pixel, -1 on void; InputError for a category the vocabulary lacks."""
+    index = {name: i for i, name in enumerate(vocabulary.names)}
+    values, inverse = np.unique(ids, return_inverse=True)
+    lut = np.full(values.size, -1, dtype=np.int32)
+    problems: list[Problem] = []
+    for k, value in enumerate(values):
+        if value == 0:
+            continue
+        category = segments[int(value)]
+        if by_name is None:
+            cls = category if category < len(vocabulary) else -1
+        else:
+            cls = index.get(by_name.get(category, ""), -1)
+        if cls < 0:
+            reason = _no_class(int(value), category, by_name, len(vocabulary))
+            problems.append(Problem(display_path(frame.info, root), reason))
+        lut[k] = cls
+    if problems:
+        raise InputError(problems)
+    classes: NDArray[np.int32] = lut[inverse.reshape(ids.shape)]
+    return classes
+
+
+def _no_class(segment: int, category: int, by_name: dict[int, str] | None, n: int) -> str:
+    if by_name is None:
+        return (
+            f"segment {segment}: category_id {category} is beyond the vocabulary of {n} "
+            "classes (without 'categories', category_id is the vocabulary index)"
+        )
+    if category not in by_name:
+        return f"segment {segment}: category_id {category} is not in 'categories'"
+    return f"segment {segment}: category {by_name[category]!r} is not in the vocabulary"

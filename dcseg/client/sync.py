@@ -1,71 +1,50 @@
-"""A small Python client of the dcseg REST API (httpx).
+"""The blocking client of the dcseg REST API (httpx), with retries and resumable downloads.
 
 Example:
     >>> with Client("http://127.0.0.1:8000", api_key="key") as client:  # doctest: +SKIP
     ...     upload = client.upload(Path("scene.tar"))
     ...     job = client.submit(upload["id"], preset="fast")
-    ...     client.wait(job["id"], timeout=3600)
+    ...     client.follow(job["id"], timeout=3600)
     ...     client.download(job["id"], Path("out"))
 """
 
 from __future__ import annotations
 
-import hashlib
 import time
-from collections.abc import Iterator, Sequence
-from pathlib import Path, PurePosixPath
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
+
+from dcseg.client.errors import ApiError, JobFailed, NetworkError
+from dcseg.client.events import ServerEvent, parse_events
+from dcseg.client.files import ARCHIVE_TYPES, file_chunks, ready_target, sha256_of, verified
+from dcseg.client.retry import IDEMPOTENT_METHODS, RetryPolicy, retry_after
+from dcseg.client.selection import choose, select
 
 if TYPE_CHECKING:  # imported where used: the CLI's argument parser imports this module
     import httpx
 
-__all__ = ["ApiError", "Client", "JobFailed", "TERMINAL"]
+__all__ = ["Client", "TERMINAL"]
 
 TERMINAL = frozenset({"succeeded", "failed", "canceled"})
 """Job statuses that never change again."""
 
-_ARCHIVE_TYPES = {
-    ".zip": "application/zip",
-    ".tar": "application/x-tar",
-    ".tgz": "application/gzip",
-    ".gz": "application/gzip",
-}
-
-
-class ApiError(RuntimeError):
-    """The API answered with a problem (RFC 9457); ``problem`` holds its body."""
-
-    def __init__(self, status: int, problem: dict[str, Any]) -> None:
-        self.status = status
-        self.problem = problem
-        detail = problem.get("detail") or problem.get("title") or "error"
-        super().__init__(f"HTTP {status}: {detail}")
-
-
-class JobFailed(RuntimeError):
-    """A job ended ``failed`` or ``canceled``; ``job`` holds its last representation."""
-
-    def __init__(self, job: dict[str, Any]) -> None:
-        self.job = job
-        super().__init__(f"job {job['id']} {job['status']}: {job.get('error')}")
-
-
-def _file_chunks(path: Path, size: int = 1 << 20) -> Iterator[bytes]:
-    with path.open("rb") as handle:
-        while chunk := handle.read(size):
-            yield chunk
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    for chunk in _file_chunks(path):
-        digest.update(chunk)
-    return digest.hexdigest()
+EventHandler = Callable[[ServerEvent], None]
 
 
 class Client:
-    """Talks to one dcseg service with one API key (None when the service has no keys)."""
+    """Talks to one dcseg service with one API key (None when the service has no keys).
+
+    Args:
+        timeout: seconds for connecting and between received bytes (not for a whole
+            download or an upload's processing).
+        retry: when requests are tried again (:class:`RetryPolicy`): GET, HEAD, PUT and
+            DELETE, and POSTs with an ``Idempotency-Key``, on connection errors and resets,
+            502/503/504 and 429 (honouring ``Retry-After``); any request whose connection
+            could not be opened (nothing was sent).
+        sleep: how the client waits between tries (tests pass a recorder).
+    """
 
     def __init__(
         self,
@@ -73,11 +52,15 @@ class Client:
         api_key: str | None = None,
         *,
         timeout: float = 60.0,
+        retry: RetryPolicy | None = None,
         transport: httpx.BaseTransport | None = None,
+        sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         import httpx
 
         headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
+        self.retry = retry or RetryPolicy()
+        self._sleep = sleep
         self._http = httpx.Client(
             base_url=base_url, headers=headers, timeout=timeout, transport=transport
         )
@@ -93,26 +76,90 @@ class Client:
     def close(self) -> None:
         self._http.close()
 
+    # -- requests -------------------------------------------------------------------------
+
+    def _request(
+        self,
+        method: str,
+        url: str,
+        *,
+        body: Callable[[], Any] | None = None,
+        headers: dict[str, str] | None = None,
+        **kwargs: Any,
+    ) -> httpx.Response:
+        """One request under the retry policy; the last response (any status) or
+        NetworkError. ``body`` makes the request's content afresh for every try."""
+        import httpx
+
+        retried = method in IDEMPOTENT_METHODS or "Idempotency-Key" in (headers or {})
+        started, attempt = time.monotonic(), 0
+        while True:
+            attempt += 1
+            try:
+                content = body() if body is not None else None
+                response = self._http.request(
+                    method, url, content=content, headers=headers, **kwargs
+                )
+            except httpx.TransportError as error:
+                unsent = isinstance(error, httpx.ConnectError | httpx.ConnectTimeout)
+                wait = self._wait(attempt, started) if retried or unsent else None
+                if wait is None:
+                    raise self._unreachable(method, url, error, attempt, started) from error
+                self._sleep(wait)
+                continue
+            if retried and response.status_code in self.retry.statuses:
+                wait = self._wait(attempt, started, response.headers.get("Retry-After"))
+                if wait is not None:
+                    self._sleep(wait)
+                    continue
+            return response
+
+    def _wait(self, attempt: int, started: float, header: str | None = None) -> float | None:
+        return self.retry.delay(attempt, time.monotonic() - started, retry_after(header))
+
+    def _unreachable(
+        self, method: str, url: str, error: Exception, attempt: int, started: float
+    ) -> NetworkError:
+        elapsed = time.monotonic() - started
+        reason = str(error) or type(error).__name__
+        return NetworkError(
+            f"{method} {self._http.base_url.join(url)} failed: {reason} "
+            f"(gave up after {attempt} tries in {elapsed:.1f} s)"
+        )
+
     def _json(self, response: httpx.Response) -> dict[str, Any]:
         if response.status_code >= 400:
             try:
                 problem = response.json()
             except ValueError:
-                problem = {"detail": response.text}
+                problem = {"title": response.reason_phrase, "detail": response.text.strip()}
+            if not isinstance(problem, dict):
+                problem = {"detail": str(problem)}
             raise ApiError(response.status_code, problem)
         body: dict[str, Any] = response.json()
         return body
 
-    def upload(self, path: Path) -> dict[str, Any]:
-        """Upload a capture archive (.zip, .tar, .tar.gz); returns the upload resource."""
-        content_type = _ARCHIVE_TYPES.get(path.suffix.lower())
+    def _get(self, url: str, **kwargs: Any) -> dict[str, Any]:
+        return self._json(self._request("GET", url, **kwargs))
+
+    # -- uploads and jobs -----------------------------------------------------------------
+
+    def upload(self, path: Path, *, idempotency_key: str | None = None) -> dict[str, Any]:
+        """Upload a capture archive (.zip, .tar, .tar.gz); returns the upload resource.
+        With ``idempotency_key`` a failed try is sent again (the service answers a repeat
+        with the first upload)."""
+        content_type = ARCHIVE_TYPES.get(path.suffix.lower())
         if content_type is None:
             raise ValueError(f"{path}: expected a .zip, .tar or .tar.gz archive")
-        response = self._http.post(
+        headers = {"Content-Type": content_type}
+        if idempotency_key:
+            headers["Idempotency-Key"] = idempotency_key
+        response = self._request(
+            "POST",
             "/v1/uploads",
-            params={"sha256": _sha256(path)},
-            content=_file_chunks(path),
-            headers={"Content-Type": content_type},
+            params={"sha256": sha256_of(path)},
+            body=lambda: file_chunks(path),
+            headers=headers,
             timeout=None,
         )
         return self._json(response)
@@ -126,54 +173,138 @@ class Client:
         parent_job_id: str | None = None,
         idempotency_key: str | None = None,
     ) -> dict[str, Any]:
-        """Create a job; returns its representation (status ``queued``)."""
+        """Create a job; returns its representation (status ``queued``). With
+        ``idempotency_key`` a failed try is sent again without creating a second job."""
         body: dict[str, Any] = {"preset": preset, "options": options or {}}
         if upload_id is not None:
             body["upload_id"] = upload_id
         if parent_job_id is not None:
             body["parent_job_id"] = parent_job_id
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
-        return self._json(self._http.post("/v1/jobs", json=body, headers=headers))
+        return self._json(self._request("POST", "/v1/jobs", json=body, headers=headers))
 
     def status(self, job_id: str) -> dict[str, Any]:
-        return self._json(self._http.get(f"/v1/jobs/{job_id}"))
+        return self._get(f"/v1/jobs/{job_id}")
 
     def cancel(self, job_id: str) -> dict[str, Any]:
-        return self._json(self._http.post(f"/v1/jobs/{job_id}:cancel"))
+        return self._json(self._request("POST", f"/v1/jobs/{job_id}:cancel"))
 
     def wait(
-        self, job_id: str, timeout: float = 3600.0, poll: float | None = None
+        self,
+        job_id: str,
+        timeout: float = 3600.0,
+        poll: float | None = None,
+        on_event: EventHandler | None = None,
     ) -> dict[str, Any]:
         """Poll until the job ends (honouring ``Retry-After``); raise JobFailed unless it
-        succeeded, TimeoutError after ``timeout`` seconds."""
+        succeeded, TimeoutError after ``timeout`` seconds. ``on_event`` receives each
+        poll's progress as a ``progress`` event."""
         deadline = time.monotonic() + timeout
         while True:
-            response = self._http.get(f"/v1/jobs/{job_id}")
+            response = self._request("GET", f"/v1/jobs/{job_id}")
             job = self._json(response)
             if job["status"] in TERMINAL:
-                if job["status"] != "succeeded":
-                    raise JobFailed(job)
-                return job
-            delay = poll if poll is not None else float(response.headers.get("Retry-After", 2))
+                return _finished(job)
+            if on_event is not None and job.get("progress"):
+                on_event(ServerEvent("progress", job["progress"]))
+            delay = poll if poll is not None else retry_after(response.headers.get("Retry-After"))
+            delay = 2.0 if delay is None else delay
             if time.monotonic() + delay > deadline:
                 raise TimeoutError(f"job {job_id} still {job['status']} after {timeout} s")
-            time.sleep(delay)
+            self._sleep(delay)
+
+    def follow(
+        self, job_id: str, on_event: EventHandler | None = None, timeout: float = 3600.0
+    ) -> dict[str, Any]:
+        """Follow the job's event stream until it ends; returns the job when it succeeded,
+        raises JobFailed when it failed or was canceled, TimeoutError after ``timeout`` s.
+
+        A dropped stream is reopened with ``Last-Event-ID`` (nothing is missed or repeated),
+        under the retry policy; when the stream cannot be had (refused, or the policy gives
+        up) the job is polled instead (:meth:`wait`).
+        """
+        import httpx
+
+        deadline = time.monotonic() + timeout
+        last, started, attempt = 0, time.monotonic(), 0
+        while True:
+            try:
+                outcome = self._stream_events(job_id, last, on_event, deadline)
+            except httpx.TransportError:
+                attempt += 1
+                wait = self._wait(attempt, started)
+                if wait is None:
+                    break
+                self._sleep(wait)
+                continue
+            if outcome is None:
+                break  # no stream: poll
+            last, done, pause = outcome
+            if done:
+                return _finished(self.status(job_id))
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"job {job_id} still running after {timeout} s")
+            started, attempt = time.monotonic(), 0
+            self._sleep(pause)
+        remaining = max(0.0, deadline - time.monotonic())
+        return self.wait(job_id, timeout=remaining, on_event=on_event)
+
+    def _stream_events(
+        self, job_id: str, after: int, on_event: EventHandler | None, deadline: float
+    ) -> tuple[int, bool, float] | None:
+        """Read one connection of the event stream: (last event id, whether ``completed``
+        came, pause before reconnecting), or None when the service offers no stream."""
+        headers = {"Last-Event-ID": str(after), "Accept": "text/event-stream"}
+        pause = 2.0
+        with self._http.stream("GET", f"/v1/jobs/{job_id}/events", headers=headers) as response:
+            kind = response.headers.get("content-type", "")
+            if response.status_code != 200 or not kind.startswith("text/event-stream"):
+                response.read()
+                return None
+            for event in parse_events(response.iter_lines()):
+                pause = event.retry_ms / 1000 if event.retry_ms is not None else pause
+                if event.id is not None:
+                    after = event.id
+                if event.type and on_event is not None:
+                    on_event(event)
+                if event.type == "completed":
+                    return after, True, 0.0
+                if time.monotonic() >= deadline:
+                    return after, False, 0.0
+        return after, False, pause
+
+    # -- artifacts and exports ------------------------------------------------------------
 
     def artifacts(self, job_id: str) -> list[dict[str, Any]]:
-        items: list[dict[str, Any]] = self._json(self._http.get(f"/v1/jobs/{job_id}/artifacts"))[
-            "artifacts"
-        ]
+        items: list[dict[str, Any]] = self._get(f"/v1/jobs/{job_id}/artifacts")["artifacts"]
         return items
 
-    def download(self, job_id: str, dest: Path, *, only: Sequence[str] | None = None) -> list[Path]:
-        """Download the job's artifacts into ``dest`` (sub-folders per stage), checking SHA-256.
+    def choose(
+        self, job_id: str, *, only: Sequence[str] | None = None, everything: bool = False
+    ) -> list[dict[str, Any]]:
+        """The listed artifacts a download fetches (see :meth:`download`)."""
+        return choose(self.artifacts(job_id), only, everything)
+
+    def download(
+        self,
+        job_id: str,
+        dest: Path,
+        *,
+        only: Sequence[str] | None = None,
+        everything: bool = False,
+    ) -> list[Path]:
+        """Download the job's deliverables into ``dest`` (sub-folders per stage), checking
+        SHA-256: the segment stage's results without its ``state/`` (every file of a job that
+        did not segment; :data:`dcseg.client.selection.DELIVERABLES`).
 
         Args:
-            only: artifact names to fetch; an entry matches a name ending in it on a ``/``
-                boundary (``instances.json`` is ``segment/instances.json``). ValueError
-                naming the entries that match nothing, before anything is downloaded.
+            only: glob patterns on the listed paths instead (``instances.json`` matches
+                ``segment/instances.json``, ``masks`` every file under ``segment/masks/``);
+                ValueError naming the patterns that match nothing, before anything is
+                downloaded.
+            everything: every file of every stage (``state/`` caches included).
         """
-        return self._fetch_all(select(self.artifacts(job_id), only), dest)
+        return self.fetch(self.choose(job_id, only=only, everything=everything), dest)
 
     def instances(
         self,
@@ -192,7 +323,7 @@ class Client:
             params["min_score"] = min_score
         found: list[dict[str, Any]] = []
         while True:
-            body = self._json(self._http.get(f"/v1/jobs/{job_id}/instances", params=params))
+            body = self._get(f"/v1/jobs/{job_id}/instances", params=params)
             found += body["instances"]
             if not body.get("next_page_token"):
                 return found
@@ -200,7 +331,7 @@ class Client:
 
     def instance(self, job_id: str, k: int) -> dict[str, Any]:
         """One object: class, score, size, box, visibility and export links per format."""
-        return self._json(self._http.get(f"/v1/jobs/{job_id}/instances/{k}"))
+        return self._get(f"/v1/jobs/{job_id}/instances/{k}")
 
     def export(
         self,
@@ -221,14 +352,15 @@ class Client:
         )
         deadline = time.monotonic() + timeout
         while True:
-            response = self._http.get(url)
+            response = self._request("GET", url)
             body = self._json(response)
             if response.status_code != 202:
                 return body
-            delay = poll if poll is not None else float(response.headers.get("Retry-After", 2))
+            delay = poll if poll is not None else retry_after(response.headers.get("Retry-After"))
+            delay = 2.0 if delay is None else delay
             if time.monotonic() + delay > deadline:
                 raise TimeoutError(f"the {fmt} export of job {job_id} not ready after {timeout} s")
-            time.sleep(delay)
+            self._sleep(delay)
 
     def download_export(
         self,
@@ -242,103 +374,113 @@ class Client:
     ) -> list[Path]:
         """Download an export's files (see :meth:`export`) into ``dest``, checking SHA-256."""
         files = self.export(job_id, fmt, instance=instance, timeout=timeout)["files"]
-        return self._fetch_all(select(files, only), dest)
+        return self.fetch(select(files, only), dest)
 
-    def _fetch_all(self, items: Sequence[dict[str, Any]], dest: Path) -> list[Path]:
-        return [self._fetch(item, dest) for item in items]
+    def fetch(self, items: Sequence[dict[str, Any]], dest: Path) -> list[Path]:
+        """Download listed files (``{name, url, sha256[, size, download_url]}``) into ``dest``."""
+        return [self.fetch_one(item, dest) for item in items]
 
-    def _fetch(self, item: dict[str, Any], dest: Path) -> Path:
-        """Stream one listed file (``{name, url, sha256}``) to ``dest/<name>`` via a ``.part``."""
-        relative = PurePosixPath(item["name"])
-        if relative.is_absolute() or ".." in relative.parts:
-            raise ApiError(500, {"detail": f"unsafe file name {item['name']!r}"})
-        target = dest.joinpath(*relative.parts)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        partial = target.with_name(target.name + ".part")
-        digest = self._fetch_presigned(item, partial) or self._stream(item["url"], partial)
-        if digest != item["sha256"]:
-            partial.unlink()
-            raise ApiError(500, {"detail": f"{item['name']}: SHA-256 mismatch"})
+    def fetch_one(self, item: dict[str, Any], dest: Path) -> Path:
+        """One listed file to ``dest/<name>``: kept when already there with its SHA-256,
+        else through ``<name>.part``, resumed from its size (``Range``) after a dropped
+        connection or an interrupted earlier run, checked, then renamed."""
+        target, partial = ready_target(item, dest)
+        if target.is_file() and verified(target, item):
+            return target
+        if not self._fetch_presigned(item, partial):
+            resumed = partial.is_file() and partial.stat().st_size > 0
+            self._stream(item, partial)
+            if not verified(partial, item) and resumed:  # the old part was not of this file
+                partial.unlink()
+                self._stream(item, partial)
+            if not verified(partial, item):
+                partial.unlink()
+                raise ApiError(502, {"detail": f"{item['name']}: SHA-256 mismatch"})
         partial.replace(target)
         return target
 
-    def _stream(self, url: str, partial: Path) -> str:
-        """Download ``url`` through the API into ``partial``; its SHA-256."""
-        digest = hashlib.sha256()
-        with self._http.stream("GET", url, timeout=None) as response:
+    def _stream(self, item: dict[str, Any], partial: Path) -> None:
+        """Download ``item`` through the API into ``partial``, continuing from its size with a
+        ``Range`` request; a dropped connection or a 5xx/429 is retried (policy), a server
+        ignoring ``Range`` (200) restarts the file."""
+        import httpx
+
+        started, attempt = time.monotonic(), 0
+        while True:
+            attempt += 1
+            try:
+                refused = self._stream_once(item, partial)
+            except httpx.TransportError as error:
+                wait = self._wait(attempt, started)
+                if wait is None:
+                    raise self._unreachable("GET", item["url"], error, attempt, started) from error
+                self._sleep(wait)
+                continue
+            if refused is None:
+                return
+            wait = self._wait(attempt, started, refused.headers.get("Retry-After"))
+            if wait is None:
+                self._json(refused)
+            self._sleep(wait or 0.0)
+
+    def _stream_once(self, item: dict[str, Any], partial: Path) -> httpx.Response | None:
+        """One try of :meth:`_stream`: None when the file was received to its end, the
+        (read) answer when its status is worth retrying."""
+        have = partial.stat().st_size if partial.is_file() else 0
+        size = item.get("size")
+        if size is not None and have > size:
+            partial.unlink()
+            have = 0
+        if size is not None and have == size:
+            return None
+        headers = {"Range": f"bytes={have}-", "If-Range": f'"{item["sha256"]}"'} if have else {}
+        with self._http.stream("GET", item["url"], headers=headers) as response:
+            if response.status_code in self.retry.statuses:
+                response.read()
+                return response
             if response.status_code >= 400:
                 response.read()
                 self._json(response)
-            with partial.open("wb") as out:
+            resume = response.status_code == 206 and _range_start(response) == have
+            with partial.open("ab" if resume else "wb") as out:
                 for chunk in response.iter_bytes():
-                    digest.update(chunk)
                     out.write(chunk)
-        return digest.hexdigest()
+        return None
 
-    def _fetch_presigned(self, item: dict[str, Any], partial: Path) -> str | None:
+    def _fetch_presigned(self, item: dict[str, Any], partial: Path) -> bool:
         """Download the artifact's presigned ``download_url`` straight from the object store
-        (no API key is sent there); None when it has none or it fails (expired, unreachable,
+        (no API key is sent there); False when it has none or it fails (expired, unreachable,
         corrupted): the caller then downloads through the API."""
         import httpx
 
         url = item.get("download_url")
         if not url:
-            return None
-        digest = hashlib.sha256()
+            return False
         try:
             with (
                 httpx.stream("GET", url, timeout=self._http.timeout) as response,
                 partial.open("wb") as out,
             ):
-                if response.status_code != 200:
-                    return None
-                for chunk in response.iter_bytes():
-                    digest.update(chunk)
-                    out.write(chunk)
+                if response.status_code == 200:
+                    for chunk in response.iter_bytes():
+                        out.write(chunk)
         except httpx.HTTPError:
-            return None
-        found = digest.hexdigest()
-        return found if found == item["sha256"] else None
+            pass
+        if verified(partial, item):
+            return True
+        partial.unlink(missing_ok=True)
+        return False
 
 
-def matches(name: str, entry: str) -> bool:
-    """Whether ``entry`` names ``name``: equal, or its trailing ``/``-separated part."""
-    entry = entry.strip("/")
-    return name == entry or name.endswith("/" + entry)
+def _range_start(response: httpx.Response) -> int | None:
+    """The first byte a 206 answer carries (``Content-Range: bytes a-b/n``)."""
+    value = response.headers.get("Content-Range", "")
+    unit, _, span = value.partition(" ")
+    first = span.partition("-")[0]
+    return int(first) if unit.lower() == "bytes" and first.isdigit() else None
 
 
-def select(items: Sequence[dict[str, Any]], only: Sequence[str] | None) -> list[dict[str, Any]]:
-    """The listed files ``only`` names (all when None); ValueError naming unmatched entries."""
-    if only is None:
-        return list(items)
-    missing = [e for e in only if not any(matches(i["name"], e) for i in items)]
-    if missing:
-        names = ", ".join(i["name"] for i in items) or "none"
-        raise ValueError(f"no file named {', '.join(map(repr, missing))} (there are: {names})")
-    return [i for i in items if any(matches(i["name"], e) for e in only)]
-
-
-DEFAULT_URL = "http://127.0.0.1:8000"
-
-
-def client_from_args(url: str | None, api_key: str | None) -> Client:
-    """A client for the CLI verbs: flags first, then ``DCSEG_URL`` / ``DCSEG_API_KEY``.
-
-    httpx logs every request at INFO (``dcseg wait`` would print one line per poll); its
-    logger is raised to WARNING unless the CLI runs with ``--verbose`` (DEBUG).
-    """
-    import logging
-    import os
-
-    if not logging.getLogger().isEnabledFor(logging.DEBUG):
-        logging.getLogger("httpx").setLevel(logging.WARNING)
-    return Client(
-        url or os.environ.get("DCSEG_URL", DEFAULT_URL),
-        api_key or os.environ.get("DCSEG_API_KEY") or None,
-    )
-
-
-def add_connection_options(parser: Any) -> None:
-    """``--url`` and ``--api-key`` for the CLI verbs talking to a service."""
-    parser.add_argument("--url", help=f"service URL (default $DCSEG_URL or {DEFAULT_URL})")
-    parser.add_argument("--api-key", help="API key (default $DCSEG_API_KEY)")
+def _finished(job: dict[str, Any]) -> dict[str, Any]:
+    if job["status"] != "succeeded":
+        raise JobFailed(job)
+    return job

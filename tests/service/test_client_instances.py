@@ -145,7 +145,7 @@ def test_cli_download_instance_export(cli, tmp_path, capsys):
     [
         (["--instance", "3"], 2, "--instance needs --format"),
         (["--only", "nope.json"], 2, "'nope.json'"),
-        (["--instance", "99", "--format", "glb"], 1, "HTTP 404"),
+        (["--instance", "99", "--format", "glb"], 4, "HTTP 404"),  # 4: not found
     ],
 )
 def test_cli_refusals(cli, tmp_path, capsys, argv, code, message):

@@ -91,7 +91,7 @@ def test_one_command_runs_a_job_end_to_end(serve, scene, tmp_path, capsys):
     job_id = capsys.readouterr().out.strip()
     assert main(["wait", job_id, "--timeout", "120", *connection]) == 0
     assert capsys.readouterr().out.strip() == f"{job_id} succeeded"
-    assert main(["download", job_id, str(tmp_path / "out"), *connection]) == 0
+    assert main(["download", job_id, str(tmp_path / "out"), "--all", *connection]) == 0
     files = capsys.readouterr().out.split()
     names = sorted(Path(f).relative_to(tmp_path / "out").as_posix() for f in files)
     expected = {

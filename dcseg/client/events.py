@@ -1,0 +1,65 @@
+"""Server-sent events (the ``text/event-stream`` format of the WHATWG HTML standard, 9.2),
+read line by line: what ``GET /v1/jobs/{id}/events`` sends."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["ServerEvent", "parse_events"]
+
+
+@dataclass(frozen=True)
+class ServerEvent:
+    """One event: ``type`` is ``status``, ``progress``, ``log`` or ``completed`` for a job;
+    ``""`` stands for a comment line (a keep-alive, or the server saying the stream ends)."""
+
+    type: str
+    data: Any = None
+    """The JSON payload (the raw text when it is not JSON)."""
+    id: int | None = None
+    """The job's event number (reconnect with ``Last-Event-ID`` set to the last one seen)."""
+    retry_ms: int | None = None
+    """The reconnection delay the server asks for, when the event set one."""
+
+
+def _decoded(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def parse_events(lines: Iterable[str]) -> Iterator[ServerEvent]:
+    """The events of a stream's lines (without their line ends); a comment line yields a
+    ``type=""`` event at once so that a reader can check its clock while the job is idle."""
+    fields: dict[str, str] = {}
+    data: list[str] = []
+    for line in lines:
+        if line.startswith(":"):
+            yield ServerEvent("", line[1:].strip())
+            continue
+        if line == "":
+            if data or "event" in fields or "retry" in fields:
+                yield _event(fields, data)
+            fields, data = {}, []
+            continue
+        name, _, value = line.partition(":")
+        value = value[1:] if value.startswith(" ") else value
+        if name == "data":
+            data.append(value)
+        else:
+            fields[name] = value
+
+
+def _event(fields: dict[str, str], data: list[str]) -> ServerEvent:
+    ident = fields.get("id", "")
+    retry = fields.get("retry", "")
+    return ServerEvent(
+        type=fields.get("event", "message" if data else ""),
+        data=_decoded("\n".join(data)) if data else None,
+        id=int(ident) if ident.isdigit() else None,
+        retry_ms=int(retry) if retry.isdigit() else None,
+    )

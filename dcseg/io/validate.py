@@ -25,6 +25,7 @@ from dcseg.io.captures.common import iter_frames, select
 from dcseg.io.ground_truth import read_ground_truth
 from dcseg.io.images import header_pixels, pixel_budget
 from dcseg.io.limits import LimitProblem
+from dcseg.io.mask_formats import describe_layout, detect_masks
 from dcseg.io.masks import read_agnostic_masks
 from dcseg.io.semantic import iter_semantic_maps, read_vocabulary
 from dcseg.types import AgnosticMasks, Capture, Frame, GroundTruth, SemanticMap, Vocabulary
@@ -222,7 +223,10 @@ def _check_masks(
         agnostic = _attempt(problems, lambda: read_agnostic_masks(_need(paths.agnostic_masks)))
         if agnostic is not None:
             problems += _check_against_frames(agnostic, _agnostic_size, frame_sizes)
-            summary["agnostic_masks"] = summarise_agnostic(agnostic)
+            summary["agnostic_masks"] = {
+                "format": _format_of(_need(paths.agnostic_masks)),
+                **summarise_agnostic(agnostic),
+            }
     if paths.semantic_masks is not None or paths.vocabulary is not None:
         vocabulary = _check_semantic(paths, problems, summary, frame_sizes)
     else:
@@ -282,8 +286,16 @@ def _check_semantic(
         read_problems.extend(error.problems)
     problems += read_problems
     if not read_problems:
-        summary["semantic_masks"] = tally.summary()
+        summary["semantic_masks"] = {
+            "format": _format_of(paths.semantic_masks),
+            **tally.summary(),
+        }
     return vocabulary
+
+
+def _format_of(path: Path) -> str:
+    """The mask format detected at ``path``, as ``dcseg validate`` prints it."""
+    return describe_layout(detect_masks(path))
 
 
 def _check_ground_truth(

@@ -1,0 +1,99 @@
+"""End to end: a ``dcseg synth`` scene's masks converted into each accepted format read back
+equal to the originals, and ``dcseg validate`` names the format it detected per folder."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dcseg.cli import main
+from dcseg.inputs import RunInputs
+from dcseg.io.mask_formats import detect_masks
+from dcseg.io.masks import decode_masks, read_agnostic_masks
+from dcseg.io.semantic import read_semantic_maps, read_vocabulary
+from dcseg.io.validate import validate_inputs
+from dcseg.types import SemanticMap
+from tests.dcseg.io.mask_files import write_json, write_palette_png, write_panoptic_png
+
+pytest.importorskip("pybullet", reason="the synthetic scene generator needs pybullet")
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("synth") / "scene"
+    args = ["synth", str(out), "--frames", "6", "--size", "64x48", "--noise", "clean"]
+    assert main(args) == 0
+    return out
+
+
+def originals(scene: Path) -> dict[str, SemanticMap]:
+    return read_semantic_maps(
+        scene / "masks" / "semantic", read_vocabulary(scene / "vocabulary.txt")
+    )
+
+
+def inputs(scene: Path, agnostic: Path, semantic: Path) -> RunInputs:
+    return RunInputs(scene, agnostic, semantic, scene / "vocabulary.txt")
+
+
+def test_class_maps_as_palette_pngs(scene: Path, tmp_path: Path) -> None:
+    maps = originals(scene)
+    for name, m in maps.items():
+        write_palette_png(tmp_path / "sem" / f"{name}.png", np.where(m.classes < 0, 255, m.classes))
+    vocabulary = read_vocabulary(scene / "vocabulary.txt")
+    read = read_semantic_maps(tmp_path / "sem", vocabulary)
+    assert sorted(read) == sorted(maps)
+    for name, m in maps.items():
+        np.testing.assert_array_equal(read[name].classes, m.classes)
+    report = validate_inputs(inputs(scene, scene / "masks" / "agnostic", tmp_path / "sem"))
+    assert report.ok, report.problems
+    assert report.summary["semantic_masks"]["format"] == "per-frame: palette PNG x6"
+    assert report.summary["agnostic_masks"]["format"] == "per-frame: SAM JSON x6"
+
+
+def test_class_maps_as_coco_panoptic(scene: Path, tmp_path: Path) -> None:
+    """One segment per class present (id = class + 1): the class maps read back unchanged and
+    every segment is one agnostic mask."""
+    maps = originals(scene)
+    vocabulary = read_vocabulary(scene / "vocabulary.txt")
+    annotations = []
+    for i, (name, m) in enumerate(sorted(maps.items())):
+        ids = np.where(m.classes < 0, 0, m.classes + 1000)
+        write_panoptic_png(tmp_path / "pan" / "panoptic" / f"{name}.png", ids)
+        segments = [
+            {"id": int(c) + 1000, "category_id": int(c) + 1, "isthing": 0}
+            for c in np.unique(m.classes)
+            if c >= 0
+        ]
+        annotations.append({"image_id": i, "file_name": f"{name}.png", "segments_info": segments})
+    categories = [{"id": i + 1, "name": n, "isthing": 0} for i, n in enumerate(vocabulary.names)]
+    write_json(
+        tmp_path / "pan" / "panoptic.json", {"annotations": annotations, "categories": categories}
+    )
+    read = read_semantic_maps(tmp_path / "pan", vocabulary)
+    masks = read_agnostic_masks(tmp_path / "pan")
+    for name, m in maps.items():
+        np.testing.assert_array_equal(read[name].classes, m.classes)
+        present = [c for c in np.unique(m.classes) if c >= 0]
+        np.testing.assert_array_equal(decode_masks(masks[name]), [m.classes == c for c in present])
+    report = validate_inputs(inputs(scene, tmp_path / "pan", tmp_path / "pan"))
+    assert report.ok, report.problems
+    assert report.summary["agnostic_masks"]["format"] == "coco-panoptic (panoptic.json)"
+    assert report.summary["semantic_masks"]["format"] == "coco-panoptic (panoptic.json)"
+
+
+def test_validate_names_a_broken_panoptic_folder(scene: Path, tmp_path: Path) -> None:
+    name = sorted(originals(scene))[0]
+    shutil.rmtree(tmp_path / "pan", ignore_errors=True)
+    write_panoptic_png(tmp_path / "pan" / f"{name}.png", np.full((48, 64), 7))
+    write_json(tmp_path / "pan" / f"{name}.json", [{"id": 8, "category_id": 0}])
+    assert detect_masks(tmp_path / "pan").kind == "panoptic-pairs"
+    report = validate_inputs(inputs(scene, tmp_path / "pan", tmp_path / "pan"))
+    reasons = {str(p) for p in report.problems}
+    assert (
+        f"pan/{name}.png: panoptic id 7 (RGB 7,0,0) not in the segments_info of pan/{name}.json"
+        in reasons
+    )

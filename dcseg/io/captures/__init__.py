@@ -10,7 +10,8 @@ Supported layouts (see each module's docstring for the details):
 * ``record3d-exr``: Record3D's "EXR + JPG" export, ``metadata.json`` + ``rgb/`` + ``depth/``;
 * ``polycam``: Polycam's raw data export, ``keyframes/`` (:mod:`.polycam`);
 * ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`);
-* ``tum``: TUM RGB-D, ``rgb.txt`` + ``depth.txt`` + ``groundtruth.txt`` (:mod:`.tum`).
+* ``tum``: TUM RGB-D, ``rgb.txt`` + ``depth.txt`` + ``groundtruth.txt`` (:mod:`.tum`);
+* ``colmap``: a COLMAP sparse model, ``sparse/0/cameras`` + ``images`` with depth (:mod:`.colmap`).
 
 Example:
     >>> capture = read_capture("scan.zip", CaptureOptions(stride=5, size=(640, 480)))
@@ -32,6 +33,7 @@ from dcseg.config import NATIVE_BUDGET, CaptureOptions, FrameBudget
 from dcseg.errors import InputError
 from dcseg.io.archive import is_archive, safe_extract
 from dcseg.io.captures import (
+    colmap,
     manifest,
     nerfstudio,
     polycam,
@@ -75,6 +77,7 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "polycam": (polycam.matches, polycam.list_frames, "keyframes/images+cameras/"),
     "7scenes": (sevenscenes.matches, sevenscenes.list_frames, "frame-*.color.*"),
     "tum": (tum.matches, tum.list_frames, "rgb.txt+depth.txt"),
+    "colmap": (colmap.matches, colmap.list_frames, "sparse/0/cameras+images.bin|txt"),
 }
 """Layout name -> (detector, frame lister, marker shown in messages), in detection order."""
 
@@ -88,7 +91,7 @@ def detect_layout(folder: Path) -> str:
     Returns:
         One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
         ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``,
-        ``"tum"``).
+        ``"tum"``, ``"colmap"``).
 
     Raises:
         InputError: no layout's markers are found.

@@ -109,7 +109,8 @@ def test_unknown_layout_and_bad_paths(tmp_path: Path) -> None:
         r"no capture layout recognised in .*: expected one of capture\.json, "
         r"color/\+depth/\+pose/, results/\+traj\.txt, transforms\.json, metadata\+rgbd/, "
         r"metadata\.json\+rgb/\+depth/, "
-        r"keyframes/images\+cameras/, frame-\*\.color\.\*, rgb\.txt\+depth\.txt"
+        r"keyframes/images\+cameras/, frame-\*\.color\.\*, rgb\.txt\+depth\.txt, "
+        r"sparse/0/cameras\+images\.bin\|txt"
     )
     with pytest.raises(InputError, match=expected):
         read_capture(tmp_path)

@@ -1,0 +1,309 @@
+"""COLMAP sparse models: fixtures written per COLMAP's output format (doc/format.rst) and the
+byte layout of its reference reader (scripts/python/read_write_model.py), with struct."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from dcseg.cli.validate import format_report
+from dcseg.config import CaptureOptions
+from dcseg.errors import InputError
+from dcseg.inputs import RunInputs
+from dcseg.io.captures import detect_layout, read_capture
+from dcseg.io.images import write_image
+from dcseg.io.validate import validate_inputs
+from dcseg.types import Intrinsics
+from tests.dcseg.io.layouts import RgbdScene, make_scene, mm
+
+MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "OPENCV": 4, "FOV": 7}
+Cameras = dict[int, tuple[str, int, int, list[float]]]
+ImageRow = tuple[int, list[float], list[float], int, str]  # id, qvec, tvec, camera id, name
+TEXT_POINTS = {8: "12.5 3.25 -1 40.0 7.5 12", 10: "12.5 3.25 -1"}
+
+
+def world_to_camera(c2w: np.ndarray) -> tuple[list[float], list[float]]:
+    """COLMAP's ``QW QX QY QZ`` and ``TX TY TZ``: x_cam = R x_world + t."""
+    rotation = c2w[:3, :3].T
+    qx, qy, qz, qw = Rotation.from_matrix(rotation).as_quat()
+    return [qw, qx, qy, qz], list(-rotation @ c2w[:3, 3])
+
+
+def pinhole(k: Intrinsics) -> Cameras:
+    """One PINHOLE camera; COLMAP's principal point is ours + 0.5 (pixel corner origin)."""
+    return {1: ("PINHOLE", k.width, k.height, [k.fx, k.fy, k.cx + 0.5, k.cy + 0.5])}
+
+
+def write_text_model(folder: Path, cameras: Cameras, images: list[ImageRow]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    lines = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, ..."]
+    for cid, (model, w, h, params) in cameras.items():
+        lines.append(" ".join(str(v) for v in [cid, model, w, h, *params]))
+    (folder / "cameras.txt").write_text("\n".join(lines) + "\n")
+    lines = ["# Image list with two lines of data per image:", "#   IMAGE_ID, QW, ..."]
+    for iid, q, t, cid, name in images:
+        pose = " ".join(repr(float(v)) for v in (*q, *t))
+        lines.append(f"{iid} {pose} {cid} {name}")
+        lines.append(TEXT_POINTS.get(iid, ""))  # 2D points "X Y POINT3D_ID ...", maybe none
+    (folder / "images.txt").write_text("\n".join(lines) + "\n")
+    # POINT3D_ID X Y Z R G B ERROR TRACK[] as (IMAGE_ID, POINT2D_IDX): seen by image 8 only
+    (folder / "points3D.txt").write_text("# 3D point list\n12 0.5 0.25 2.0 200 100 50 0.7 8 1\n")
+
+
+def write_binary_model(folder: Path, cameras: Cameras, images: list[ImageRow]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    out = struct.pack("<Q", len(cameras))
+    for cid, (model, w, h, params) in cameras.items():
+        out += struct.pack("<iiQQ", cid, MODEL_IDS[model], w, h)
+        out += struct.pack("<" + "d" * len(params), *params)
+    (folder / "cameras.bin").write_bytes(out)
+    out = struct.pack("<Q", len(images))
+    for iid, q, t, cid, name in images:
+        out += struct.pack("<i7di", iid, *q, *t, cid) + name.encode("utf-8") + b"\x00"
+        points = [(12.5, 3.25, -1), (40.0, 7.5, 12)][: iid % 3]
+        out += struct.pack("<Q", len(points))
+        out += b"".join(struct.pack("<ddq", *p) for p in points)
+    (folder / "images.bin").write_bytes(out)
+    # points3D: one point, for completeness of the model (not read)
+    point = struct.pack("<QdddBBBd", 12, 0.5, 0.25, 2.0, 200, 100, 50, 0.7)
+    track = struct.pack("<Q", 1) + struct.pack("<ii", 8, 1)  # image 8's second 2D point
+    (folder / "points3D.bin").write_bytes(struct.pack("<Q", 1) + point + track)
+
+
+def write_colmap(
+    scene: RgbdScene, root: Path, binary: bool = True, cameras: Cameras | None = None
+) -> Path:
+    """Images in ``images/``, depth as uint16 mm PNG in ``depth/``; image ids deliberately not
+    in name order (COLMAP's ids are unordered)."""
+    images: list[ImageRow] = []
+    for i in range(scene.n):
+        write_image(root / "images" / f"frame_{i}.png", scene.rgb[i])
+        write_image(root / "depth" / f"frame_{i}.png", mm(scene.depth[i]))
+        q, t = world_to_camera(scene.c2w[i])
+        images.append((10 - i, q, t, 1, f"frame_{i}.png"))
+    writer = write_binary_model if binary else write_text_model
+    writer(root / "sparse" / "0", cameras or pinhole(scene.k), images[::-1])
+    return root
+
+
+def check_round_trip(scene: RgbdScene, root: Path) -> None:
+    capture = read_capture(root)
+    assert capture.layout == "colmap"
+    assert capture.names == tuple(f"frame_{i}" for i in range(scene.n))
+    for i, frame in enumerate(capture.frames):
+        np.testing.assert_array_equal(frame.rgb, scene.rgb[i])
+        np.testing.assert_allclose(frame.depth, scene.depth[i], atol=1e-6)
+        np.testing.assert_allclose(frame.c2w, scene.c2w[i], atol=1e-9)
+        assert frame.intrinsics == scene.k
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_round_trip(rgbd_scene: RgbdScene, tmp_path: Path, binary: bool) -> None:
+    root = write_colmap(rgbd_scene, tmp_path, binary=binary)
+    assert detect_layout(root) == "colmap"
+    check_round_trip(rgbd_scene, root)
+    frame = read_capture(root).frames[0]
+    suffix = "bin" if binary else "txt"
+    assert frame.files["intrinsics"].startswith(f"sparse/0/cameras.{suffix}")
+    assert frame.files["pose"] == (
+        "sparse/0/images.bin:image 10" if binary else "sparse/0/images.txt:line 9 (image 10)"
+    )
+
+
+def test_model_in_sparse_and_npy_depth(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_colmap(rgbd_scene, tmp_path)
+    (root / "sparse" / "0").rename(root / "sparse_0")
+    (root / "sparse").rmdir()
+    (root / "sparse_0").rename(root / "sparse")
+    (root / "depth" / "frame_1.png").unlink()
+    np.save(root / "depth" / "frame_1.npy", rgbd_scene.depth[1])
+    check_round_trip(rgbd_scene, root)
+
+
+def test_single_focal_and_zero_distortion(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    k = Intrinsics(20.0, 20.0, 7.5, 5.5, 16, 12)
+    scene = RgbdScene(rgbd_scene.rgb, rgbd_scene.depth, rgbd_scene.c2w, k)
+    for model, extra in (("SIMPLE_PINHOLE", []), ("SIMPLE_RADIAL", [0.0])):
+        cameras: Cameras = {1: (model, 16, 12, [20.0, 8.0, 6.0, *extra])}
+        check_round_trip(scene, write_colmap(scene, tmp_path / model, cameras=cameras))
+    opencv: Cameras = {1: ("OPENCV", 16, 12, [20.0, 20.0, 8.0, 6.0, 0.0, 0.0, 0.0, 0.0])}
+    check_round_trip(scene, write_colmap(scene, tmp_path / "opencv", False, opencv))
+
+
+def test_distortion_and_fisheye_are_refused(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    cameras: Cameras = {1: ("OPENCV", 16, 12, [20.0, 22.0, 8.0, 6.0, -0.1, 0.01, 0.0, 0.0])}
+    root = write_colmap(rgbd_scene, tmp_path / "a", binary=False, cameras=cameras)
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert [str(p) for p in info.value.problems] == [
+        "sparse/0/cameras.txt:line 3 (camera 1): camera model OPENCV has lens distortion "
+        "(-0.1 0.01 0 0), which dcseg does not model: undistort the images first with "
+        "`colmap image_undistorter` (it writes PINHOLE)"
+    ]
+    cameras = {1: ("FOV", 16, 12, [20.0, 22.0, 8.0, 6.0, 0.9])}
+    root = write_colmap(rgbd_scene, tmp_path / "b", cameras=cameras)
+    with pytest.raises(
+        InputError, match=r"^sparse/0/cameras\.bin:camera 1: camera model FOV is not supported"
+    ):
+        read_capture(root)
+
+
+def test_unknown_camera_model(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_colmap(rgbd_scene, tmp_path / "t", binary=False)
+    (root / "sparse" / "0" / "cameras.txt").write_text("# cameras\n1 PINHOLY 16 12 20 22 8 6\n")
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert str(info.value).startswith(
+        "sparse/0/cameras.txt:line 2: unknown camera model 'PINHOLY' (COLMAP's models are "
+        "SIMPLE_PINHOLE, PINHOLE,"
+    )
+    root = write_colmap(rgbd_scene, tmp_path / "b")
+    cameras = root / "sparse" / "0" / "cameras.bin"
+    raw = bytearray(cameras.read_bytes())
+    raw[12:16] = struct.pack("<i", 42)  # the model id of camera 1
+    cameras.write_bytes(bytes(raw))
+    with pytest.raises(InputError, match=r"^sparse/0/cameras\.bin: camera 1 \(id 1\): unknown "):
+        read_capture(root)
+
+
+def test_truncated_binary(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_colmap(rgbd_scene, tmp_path)
+    images = root / "sparse" / "0" / "images.bin"
+    raw = images.read_bytes()  # image 7 first: 64 bytes, "frame_3.png\0", 1 point of 24 bytes
+    images.write_bytes(raw[:40])
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert str(info.value) == (
+        "sparse/0/images.bin: truncated: declares 4 images but only 32 bytes follow "
+        "(each takes at least 73)"
+    )
+    one = struct.pack("<Q", 1)
+    images.write_bytes(one + raw[8 : 8 + 64 + 12 + 8 + 10])
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert str(info.value) == (
+        "sparse/0/images.bin: truncated at byte 92: image 1 (id 7): 1 2D points needs 24 bytes, "
+        "10 left"
+    )
+    images.write_bytes(one + raw[8 : 8 + 64 + 5] + b"x" * 10)
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert str(info.value) == (
+        "sparse/0/images.bin: truncated at byte 72: image 1 (id 7): name ends before its NUL "
+        "terminator"
+    )
+    cameras = root / "sparse" / "0" / "cameras.bin"
+    cameras.write_bytes(cameras.read_bytes()[:50])
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert str(info.value) == (
+        "sparse/0/cameras.bin: truncated at byte 32: camera 1 (id 1): PINHOLE parameters needs "
+        "32 bytes, 18 left"
+    )
+
+
+def test_empty_image_name(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_colmap(rgbd_scene, tmp_path)
+    q, t = world_to_camera(rgbd_scene.c2w[0])
+    write_binary_model(root / "sparse" / "0", pinhole(rgbd_scene.k), [(5, q, t, 1, "")])
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert [str(p) for p in info.value.problems] == ["sparse/0/images.bin:image 5: NAME is empty"]
+
+
+def test_malformed_text(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_colmap(rgbd_scene, tmp_path, binary=False)
+    path = root / "sparse" / "0" / "images.txt"
+    lines = path.read_text().splitlines()
+    lines[2] = " ".join(lines[2].split()[:9])  # no NAME
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert str(info.value) == (
+        "sparse/0/images.txt:line 3: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, "
+        "got 9 values"
+    )
+    lines[2] = "7 1 0 0 0 0 0 x 1 frame_3.png"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"line 3: QW QX QY QZ TX TY TZ must be numbers"):
+        read_capture(root)
+    lines[2] = "7 0.5 0 0 0 0 0 0 3 frame_3.png"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert [str(p) for p in info.value.problems] == [
+        "sparse/0/images.txt:line 3 (image 7): CAMERA_ID 3: no such camera in the cameras file",
+        "sparse/0/images.txt:line 3 (image 7): quaternion (QW, QX, QY, QZ) has norm 0.5, "
+        "expected 1",
+    ]
+    (root / "sparse" / "0" / "cameras.txt").write_text("1 PINHOLE 16 12 20 22 8\n")
+    with pytest.raises(InputError, match=r"cameras\.txt:line 1: PINHOLE has 4 parameters, got 3"):
+        read_capture(root)
+
+
+def test_missing_parts_and_size_mismatch(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_colmap(rgbd_scene, tmp_path)
+    (root / "depth" / "frame_2.png").unlink()
+    (root / "images" / "frame_0.png").unlink()
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert [str(p) for p in info.value.problems] == [
+        "images/frame_0.png: missing (colour images/frame_0.png has no colour)",
+        "depth/frame_2.png: missing (colour images/frame_2.png has no depth)",
+    ]
+    cameras: Cameras = {1: ("PINHOLE", 32, 24, [20.0, 22.0, 8.0, 6.0])}
+    root = write_colmap(rgbd_scene, tmp_path / "b", cameras=cameras)
+    with pytest.raises(InputError, match=r"cameras\.bin:camera 1: intrinsics are for 32x24"):
+        read_capture(root)
+
+
+def test_depth_at_another_resolution_is_resampled(tmp_path: Path) -> None:
+    scene = make_scene(n=2)
+    root = write_colmap(scene, tmp_path)
+    write_image(root / "depth" / "frame_1.png", mm(scene.depth[1])[::2, ::2])
+    frame = read_capture(root).frames[1]
+    assert frame.depth.shape == (12, 16)
+    assert frame.depth[3, 5] == pytest.approx(scene.depth[1][2, 4])
+
+
+def test_rgb_only_needs_depth_for_now(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_colmap(rgbd_scene, tmp_path)
+    for path in (root / "depth").iterdir():
+        path.unlink()
+    (root / "depth").rmdir()
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert str(info.value).startswith(
+        "depth/: missing: this COLMAP capture has no depth maps (depth/<image stem>.png, "
+        "uint16 millimetres, or .npy float32 metres). dcseg needs depth for now"
+    )
+    report = validate_inputs(RunInputs(capture=root))
+    assert [p.path for p in report.problems] == ["depth/"]
+
+
+def test_validate_names_the_layout(tmp_path: Path) -> None:
+    root = write_colmap(make_scene(n=2), tmp_path)
+    report = validate_inputs(RunInputs(capture=root), CaptureOptions())
+    assert report.ok
+    assert "layout: colmap" in format_report(report.summary, [])
+
+
+def test_synth_scene_as_colmap(tmp_path: Path) -> None:
+    """A ``dcseg synth`` capture written as a binary COLMAP model reads back the same."""
+    pytest.importorskip("pybullet")
+    from dcseg.synth import SynthConfig, generate_scene, write_scene
+
+    # what `dcseg synth s --frames 6 --size 64x48` writes
+    write_scene(generate_scene(SynthConfig(seed=0, frames=6, width=64, height=48)), tmp_path / "s")
+    original = read_capture(tmp_path / "s")
+    scene = RgbdScene(
+        [f.rgb for f in original.frames],
+        [f.depth for f in original.frames],
+        [f.c2w for f in original.frames],
+        original.frames[0].intrinsics,
+    )
+    check_round_trip(scene, write_colmap(scene, tmp_path / "colmap"))

@@ -10,9 +10,10 @@ A mask folder holds one entry per frame, matched to the capture by file stem. Ea
   a palette PNG (DAVIS, SAM2, DEVA, VOC) is read by palette index, 0 and 255 (VOC's void) = none.
 * ``<stem>.npy``: an integer label map, negative = no mask, every other value = one mask.
 
-The whole folder may instead be one panoptic source (COCO panoptic JSON + PNGs, or per-frame
-PNG + ``segments_info`` JSON pairs; :mod:`dcseg.io.mask_formats.panoptic`): every segment is a
-mask.
+The whole folder (or the JSON file given) may instead be one COCO instance JSON for all frames
+(polygons or RLE; :mod:`dcseg.io.mask_formats.coco`) or one panoptic source (COCO panoptic JSON
++ PNGs, or per-frame PNG + ``segments_info`` JSON pairs; :mod:`dcseg.io.mask_formats.panoptic`):
+every annotation or segment is a mask.
 
 Masks are kept compact as COCO RLEs (``{"size": [H, W], "counts": bytes}``) and are only
 decoded on demand, one frame (or one mask) at a time. Empty masks are dropped.
@@ -34,7 +35,14 @@ from numpy.typing import NDArray
 from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection, entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest
-from dcseg.io.mask_formats import COCO_PANOPTIC, PANOPTIC_PAIRS, MaskLayout, detect_masks
+from dcseg.io.mask_formats import (
+    COCO_INSTANCES,
+    COCO_PANOPTIC,
+    PANOPTIC_PAIRS,
+    MaskLayout,
+    detect_masks,
+)
+from dcseg.io.mask_formats.coco import read_coco_masks
 from dcseg.io.mask_formats.palette import PALETTE_VOID, is_palette_png, read_palette_indices
 from dcseg.io.mask_formats.panoptic import read_panoptic_masks
 from dcseg.io.mask_formats.rle import RLE, encode
@@ -200,7 +208,17 @@ def write_agnostic_json(path: Path, masks: AgnosticMasks) -> None:
 _LayoutReader = Callable[
     [MaskLayout, tuple[int, int] | None, FrameSelection | None], dict[str, AgnosticMasks]
 ]
+
+
+def _read_coco(
+    layout: MaskLayout, size: tuple[int, int] | None, frames: FrameSelection | None
+) -> dict[str, AgnosticMasks]:
+    masks = read_coco_masks(layout, frames)
+    return masks if size is None else {k: resize_masks(m, size) for k, m in masks.items()}
+
+
 _LAYOUT_READERS: dict[str, _LayoutReader] = {
+    COCO_INSTANCES: _read_coco,
     COCO_PANOPTIC: read_panoptic_masks,
     PANOPTIC_PAIRS: read_panoptic_masks,
 }

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -83,6 +84,37 @@ def test_class_maps_as_coco_panoptic(scene: Path, tmp_path: Path) -> None:
     assert report.ok, report.problems
     assert report.summary["agnostic_masks"]["format"] == "coco-panoptic (panoptic.json)"
     assert report.summary["semantic_masks"]["format"] == "coco-panoptic (panoptic.json)"
+
+
+def test_agnostic_masks_as_one_coco_instance_json(scene: Path, tmp_path: Path) -> None:
+    """Every SAM record of every frame as a COCO annotation (RLE), all frames in one file."""
+    sam = read_agnostic_masks(scene / "masks" / "agnostic")
+    images: list[dict[str, Any]] = []
+    annotations: list[dict[str, Any]] = []
+    for i, (name, masks) in enumerate(sorted(sam.items())):
+        images.append(
+            {"id": i, "file_name": f"{name}.jpg", "height": masks.height, "width": masks.width}
+        )
+        for rle in masks.rles:
+            segmentation = {"size": rle["size"], "counts": rle["counts"].decode()}
+            annotations.append(
+                {
+                    "id": len(annotations),
+                    "image_id": i,
+                    "category_id": 1,
+                    "segmentation": segmentation,
+                }
+            )
+    write_json(tmp_path / "coco" / "instances.json", {"images": images, "annotations": annotations})
+    read = read_agnostic_masks(tmp_path / "coco")
+    assert sorted(read) == sorted(sam) and sum(len(m) for m in read.values()) == len(annotations)
+    for name, masks in sam.items():
+        np.testing.assert_array_equal(decode_masks(read[name]), decode_masks(masks))
+    report = validate_inputs(
+        inputs(scene, tmp_path / "coco" / "instances.json", scene / "masks" / "semantic")
+    )
+    assert report.ok, report.problems
+    assert report.summary["agnostic_masks"]["format"] == "coco-instances (instances.json)"
 
 
 def test_validate_names_a_broken_panoptic_folder(scene: Path, tmp_path: Path) -> None:

@@ -1,0 +1,159 @@
+"""One COCO instance JSON for all frames (detectors, Grounded-SAM, annotation tools' exports).
+
+The file follows the COCO "object detection" format: ``images`` (``id``, ``file_name``,
+``height``, ``width``) and ``annotations`` (``id``, ``image_id``, ``segmentation``, optionally
+``category_id``, ``score``, ``iscrowd``). A frame is the stem of its image's ``file_name``.
+``segmentation`` is a list of polygons ``[[x1, y1, x2, y2, ...], ...]`` (rasterised with
+pycocotools ``frPyObjects``, the reference COCO API) or an RLE, compressed or not. Each
+annotation is one class-agnostic mask; images without annotations have no masks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pycocotools.mask as mask_util
+
+from dcseg.errors import InputError, Problem
+from dcseg.io.folders import FrameSelection
+from dcseg.io.images import display_path
+from dcseg.io.mask_formats import MaskLayout
+from dcseg.io.mask_formats.rle import RLE, is_count, to_rle
+from dcseg.types import AgnosticMasks
+
+__all__ = ["read_coco_masks"]
+
+
+@dataclass(frozen=True)
+class _Image:
+    stem: str
+    height: int
+    width: int
+    annotations: list[tuple[int, dict[str, Any]]]
+
+
+def read_coco_masks(layout: MaskLayout, frames: FrameSelection | None) -> dict[str, AgnosticMasks]:
+    """Every (selected) frame's masks at the resolution its ``images`` entry gives.
+
+    Raises:
+        InputError: listing every problem found (the JSON file, the entry and its field).
+    """
+    assert layout.index is not None
+    shown = display_path(layout.index, layout.root)
+    images, problems = _images(layout.data, shown)
+    problems += _attach(layout.data["annotations"], images, shown)
+    by_stem = {image.stem: image for image in images.values()}
+    if frames is not None:
+        kept, extra = frames.pick(dict.fromkeys(by_stem, layout.index), layout.path, "masks")
+        by_stem = {stem: by_stem[stem] for stem in kept}
+        problems += extra
+    out: dict[str, AgnosticMasks] = {}
+    for stem, image in sorted(by_stem.items()):
+        rles: list[RLE] = []
+        for i, annotation in image.annotations:
+            rle, reason = _mask_of(annotation, image)
+            if rle is None:
+                problems.append(Problem(shown, f"{_where(i, annotation)}: {reason}"))
+            elif mask_util.area(rle) > 0:
+                rles.append(rle)
+        out[stem] = AgnosticMasks(stem, image.height, image.width, tuple(rles), shown)
+    if problems:
+        raise InputError(problems)
+    return out
+
+
+def _images(data: dict[str, Any], shown: str) -> tuple[dict[int, _Image], list[Problem]]:
+    """``images`` by id; problems for missing fields and frames listed twice."""
+    raw = data.get("images")
+    if not isinstance(raw, list):
+        return {}, [Problem(shown, "expected an 'images' list (COCO instance format)")]
+    images: dict[int, _Image] = {}
+    stems: set[str] = set()
+    problems: list[Problem] = []
+    for i, entry in enumerate(raw):
+        fields = entry if isinstance(entry, dict) else {}
+        bad = [
+            key
+            for key in ("id", "height", "width")
+            if not is_count(fields.get(key)) or (key != "id" and fields[key] == 0)
+        ]
+        name = fields.get("file_name")
+        if not isinstance(name, str) or not Path(name).stem:
+            bad.append("file_name")
+        if bad:
+            listed = ", ".join(bad)
+            problems.append(Problem(shown, f"images[{i}]: missing or invalid {listed}"))
+            continue
+        stem = Path(str(name)).stem
+        if stem in stems or fields["id"] in images:
+            problems.append(Problem(shown, f"images[{i}]: frame {stem!r} or id listed twice"))
+            continue
+        stems.add(stem)
+        images[fields["id"]] = _Image(stem, fields["height"], fields["width"], [])
+    return images, problems
+
+
+def _attach(annotations: list[Any], images: dict[int, _Image], shown: str) -> list[Problem]:
+    """Give every annotation to its image; a problem for each that names no listed image."""
+    problems: list[Problem] = []
+    for i, annotation in enumerate(annotations):
+        if not isinstance(annotation, dict):
+            problems.append(Problem(shown, f"annotations[{i}] must be an object"))
+            continue
+        image = images.get(annotation.get("image_id", -1))
+        if image is None:
+            got = annotation.get("image_id")
+            reason = f"{_where(i, annotation)}: image_id {got!r} is not in 'images'"
+            problems.append(Problem(shown, reason))
+        else:
+            image.annotations.append((i, annotation))
+    return problems
+
+
+def _where(i: int, annotation: dict[str, Any]) -> str:
+    """``annotations[4] (id 17)``: the position, and the id when the annotation has one."""
+    ident = annotation.get("id")
+    return f"annotations[{i}]" + (f" (id {ident})" if ident is not None else "")
+
+
+def _mask_of(annotation: dict[str, Any], image: _Image) -> tuple[RLE | None, str]:
+    """The annotation's mask as a compressed RLE at the image's size, or None and why."""
+    seg = annotation.get("segmentation")
+    if isinstance(seg, dict):
+        rle, reason = to_rle(seg)
+        if rle is None:
+            return None, f"segmentation: {reason}"
+        if list(rle["size"]) != [image.height, image.width]:
+            got = f"{rle['size'][1]}x{rle['size'][0]}"
+            return None, f"segmentation RLE is {got}, image is {image.width}x{image.height}"
+        return rle, ""
+    if not isinstance(seg, list) or not seg:
+        return None, "segmentation must be polygons [[x1, y1, ...], ...] or an RLE"
+    polygons = [seg] if all(_is_number(v) for v in seg) else seg
+    for k, polygon in enumerate(polygons):
+        reason = _polygon_problem(polygon)
+        if reason:
+            return None, f"segmentation[{k}] {reason}"
+    rles = mask_util.frPyObjects([list(map(float, p)) for p in polygons], image.height, image.width)
+    merged = mask_util.merge(rles)
+    return {"size": [image.height, image.width], "counts": merged["counts"]}, ""
+
+
+def _polygon_problem(polygon: Any) -> str:
+    """Why ``polygon`` is not a COCO polygon (an even list of >= 6 numbers), or ""."""
+    if not isinstance(polygon, list) or not all(_is_number(v) for v in polygon):
+        return "must be a list of numbers [x1, y1, x2, y2, ...]"
+    if len(polygon) % 2:
+        return f"has an odd number of coordinates ({len(polygon)})"
+    if len(polygon) < 6:
+        return f"has {len(polygon) // 2} points; a polygon needs at least 3"
+    if not np.isfinite(np.asarray(polygon, dtype=np.float64)).all():
+        return "has a coordinate that is not finite"
+    return ""
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)

@@ -1,0 +1,147 @@
+"""One COCO instance JSON for all frames: polygons (pycocotools frPyObjects) and RLEs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pycocotools.mask as mask_util
+import pytest
+
+from dcseg.errors import InputError
+from dcseg.io.folders import FrameSelection
+from dcseg.io.mask_formats import COCO_INSTANCES, detect_masks
+from dcseg.io.mask_formats.rle import decode_rle
+from dcseg.io.masks import decode_masks, read_agnostic_masks
+from dcseg.io.semantic import read_semantic_maps
+from dcseg.types import Vocabulary
+from tests.dcseg.io.mask_files import write_json
+
+SQUARE = [2.0, 1.0, 7.0, 1.0, 7.0, 5.0, 2.0, 5.0]
+TRIANGLE: list[float] = [0, 0, 4, 0, 0, 4]
+
+
+def reference(polygons: list[list[float]], height: int, width: int) -> np.ndarray:
+    """The reference COCO API's rasterisation (what ``annToMask`` gives)."""
+    merged = mask_util.merge(mask_util.frPyObjects(polygons, height, width))
+    return decode_rle(merged)  # pycocotools' decode warns under numpy 2
+
+
+def rle_of(mask: np.ndarray) -> dict[str, Any]:
+    rle = mask_util.encode(np.asfortranarray(mask.astype(np.uint8)))
+    return {"size": rle["size"], "counts": rle["counts"].decode()}
+
+
+def coco(annotations: list[dict[str, Any]], n_images: int = 2) -> dict[str, Any]:
+    images = [
+        {"id": i + 1, "file_name": f"rgb/frame_{i:04d}.jpg", "height": 8, "width": 10}
+        for i in range(n_images)
+    ]
+    categories = [{"id": 1, "name": "chair"}]
+    return {"images": images, "annotations": annotations, "categories": categories}
+
+
+def test_polygons_and_rles_one_mask_per_annotation(tmp_path: Path) -> None:
+    crowd = np.zeros((8, 10), bool)
+    crowd[6:, :] = True
+    # uncompressed (iscrowd) counts, column-major: each of the 10 columns is 6 off then 2 on
+    list_counts = {"size": [8, 10], "counts": [6, 2] * 10}
+    annotations = [
+        {"id": 10, "image_id": 1, "category_id": 1, "segmentation": [SQUARE]},
+        {"id": 11, "image_id": 1, "category_id": 1, "segmentation": [SQUARE, TRIANGLE]},
+        {"id": 12, "image_id": 1, "category_id": 1, "segmentation": rle_of(crowd), "iscrowd": 1},
+        {"id": 13, "image_id": 1, "category_id": 1, "segmentation": list_counts, "iscrowd": 1},
+        {"id": 14, "image_id": 2, "category_id": 1, "segmentation": TRIANGLE, "score": 0.4},
+    ]
+    write_json(tmp_path / "masks" / "instances.json", coco(annotations))
+    assert detect_masks(tmp_path / "masks").kind == COCO_INSTANCES
+    masks = read_agnostic_masks(tmp_path / "masks")
+    assert sorted(masks) == ["frame_0000", "frame_0001"]
+    dense = decode_masks(masks["frame_0000"])
+    square = np.zeros((8, 10), bool)
+    square[1:5, 2:7] = True  # x from 2 to 7, y from 1 to 5: the pixels whose centres are inside
+    np.testing.assert_array_equal(dense[0], square)
+    np.testing.assert_array_equal(dense[0], reference([SQUARE], 8, 10))
+    np.testing.assert_array_equal(dense[1], reference([SQUARE, TRIANGLE], 8, 10))
+    np.testing.assert_array_equal(dense[2], crowd)
+    np.testing.assert_array_equal(dense[3], crowd)
+    np.testing.assert_array_equal(
+        decode_masks(masks["frame_0001"])[0], reference([list(map(float, TRIANGLE))], 8, 10)
+    )
+    assert masks["frame_0000"].source == "masks/instances.json"
+
+
+def test_json_file_given_directly_with_size_and_frames(tmp_path: Path) -> None:
+    annotations = [{"id": 1, "image_id": 2, "segmentation": [SQUARE]}]
+    index = write_json(tmp_path / "instances.json", coco(annotations, n_images=3))
+    selection = FrameSelection(frozenset({"frame_0001"}), None)
+    masks = read_agnostic_masks(index, size=(20, 16), frames=selection)
+    assert list(masks) == ["frame_0001"]
+    assert (masks["frame_0001"].width, masks["frame_0001"].height, len(masks["frame_0001"])) == (
+        20,
+        16,
+        1,
+    )
+
+
+def test_image_without_annotations_has_no_masks(tmp_path: Path) -> None:
+    write_json(tmp_path / "m" / "coco.json", coco([]))
+    masks = read_agnostic_masks(tmp_path / "m")
+    assert [(len(m), m.width, m.height) for m in masks.values()] == [(0, 10, 8), (0, 10, 8)]
+
+
+def test_error_polygon_with_two_points_names_file_annotation_and_field(tmp_path: Path) -> None:
+    annotations: list[dict[str, Any]] = [
+        {"id": 7, "image_id": 1, "segmentation": [SQUARE, [1, 1, 3, 3]]},
+        {"id": 8, "image_id": 1, "segmentation": [[1, 2, 3]]},
+        {"id": 9, "image_id": 5, "segmentation": [SQUARE]},
+        {"id": 10, "image_id": 2, "segmentation": rle_of(np.ones((4, 4), bool))},
+        {"image_id": 2, "segmentation": [["a", 1, 2, 3, 4, 5]]},
+        {"id": 12, "image_id": 2},
+    ]
+    write_json(tmp_path / "m" / "coco.json", coco(annotations))
+    with pytest.raises(InputError) as info:
+        read_agnostic_masks(tmp_path / "m")
+    assert [str(p) for p in info.value.problems] == [
+        "m/coco.json: annotations[2] (id 9): image_id 5 is not in 'images'",
+        "m/coco.json: annotations[0] (id 7): segmentation[1] has 2 points; a polygon needs at "
+        "least 3",
+        "m/coco.json: annotations[1] (id 8): segmentation[0] has an odd number of coordinates (3)",
+        "m/coco.json: annotations[3] (id 10): segmentation RLE is 4x4, image is 10x8",
+        "m/coco.json: annotations[4]: segmentation[0] must be a list of numbers "
+        "[x1, y1, x2, y2, ...]",
+        "m/coco.json: annotations[5] (id 12): segmentation must be polygons [[x1, y1, ...], ...] "
+        "or an RLE",
+    ]
+
+
+def test_error_images_fields(tmp_path: Path) -> None:
+    data = coco([])
+    data["images"] += [{"id": 9, "file_name": "x.jpg", "height": 0, "width": 4}]
+    data["images"] += [{"id": 1, "file_name": "y.jpg", "height": 2, "width": 4}]
+    write_json(tmp_path / "m" / "coco.json", data)
+    with pytest.raises(InputError) as info:
+        read_agnostic_masks(tmp_path / "m")
+    assert [str(p) for p in info.value.problems] == [
+        "m/coco.json: images[2]: missing or invalid height",
+        "m/coco.json: images[3]: frame 'y' or id listed twice",
+    ]
+
+
+def test_error_not_coco_and_malformed_json(tmp_path: Path) -> None:
+    write_json(tmp_path / "a.json", {"annotations": 3})
+    with pytest.raises(InputError, match="a.json: expected a COCO JSON object with an"):
+        read_agnostic_masks(tmp_path / "a.json")
+    (tmp_path / "b.json").write_text('{"annotations": [', encoding="utf-8")
+    with pytest.raises(InputError, match="b.json: malformed JSON at line 1"):
+        read_agnostic_masks(tmp_path / "b.json")
+    (tmp_path / "c.txt").write_text("x", encoding="utf-8")
+    with pytest.raises(InputError, match="expected a folder of masks or a COCO JSON file"):
+        read_agnostic_masks(tmp_path / "c.txt")
+
+
+def test_coco_instances_are_not_class_maps(tmp_path: Path) -> None:
+    write_json(tmp_path / "m" / "coco.json", coco([]))
+    with pytest.raises(InputError, match="coco-instances annotations are class-agnostic masks"):
+        read_semantic_maps(tmp_path / "m", Vocabulary(("chair",)))

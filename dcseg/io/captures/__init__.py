@@ -11,7 +11,8 @@ Supported layouts (see each module's docstring for the details):
 * ``polycam``: Polycam's raw data export, ``keyframes/`` (:mod:`.polycam`);
 * ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`);
 * ``tum``: TUM RGB-D, ``rgb.txt`` + ``depth.txt`` + ``groundtruth.txt`` (:mod:`.tum`);
-* ``colmap``: a COLMAP sparse model, ``sparse/0/cameras`` + ``images`` with depth (:mod:`.colmap`).
+* ``colmap``: a COLMAP sparse model, ``sparse/0/cameras`` + ``images`` with depth (:mod:`.colmap`);
+* ``redwood``: Redwood / Open3D, ``image|rgb|color/`` + ``depth/`` + a ``.log`` (:mod:`.redwood`).
 
 Example:
     >>> capture = read_capture("scan.zip", CaptureOptions(stride=5, size=(640, 480)))
@@ -38,6 +39,7 @@ from dcseg.io.captures import (
     nerfstudio,
     polycam,
     record3d,
+    redwood,
     replica,
     scannet,
     sevenscenes,
@@ -78,6 +80,7 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "7scenes": (sevenscenes.matches, sevenscenes.list_frames, "frame-*.color.*"),
     "tum": (tum.matches, tum.list_frames, "rgb.txt+depth.txt"),
     "colmap": (colmap.matches, colmap.list_frames, "sparse/0/cameras+images.bin|txt"),
+    "redwood": (redwood.matches, redwood.list_frames, "image|rgb|color/+depth/+*.log"),
 }
 """Layout name -> (detector, frame lister, marker shown in messages), in detection order."""
 
@@ -91,7 +94,7 @@ def detect_layout(folder: Path) -> str:
     Returns:
         One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
         ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``,
-        ``"tum"``, ``"colmap"``).
+        ``"tum"``, ``"colmap"``, ``"redwood"``).
 
     Raises:
         InputError: no layout's markers are found.

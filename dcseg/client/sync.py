@@ -16,6 +16,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
+from dcseg.client.downloads import fetch_presigned, resume
 from dcseg.client.errors import ApiError, JobFailed, NetworkError
 from dcseg.client.events import ServerEvent, parse_events
 from dcseg.client.files import ARCHIVE_TYPES, file_chunks, ready_target, sha256_of, verified
@@ -387,97 +388,17 @@ class Client:
         target, partial = ready_target(item, dest)
         if target.is_file() and verified(target, item):
             return target
-        if not self._fetch_presigned(item, partial):
+        if not fetch_presigned(item, partial, self._http.timeout):
             resumed = partial.is_file() and partial.stat().st_size > 0
-            self._stream(item, partial)
+            resume(self, item, partial)
             if not verified(partial, item) and resumed:  # the old part was not of this file
                 partial.unlink()
-                self._stream(item, partial)
+                resume(self, item, partial)
             if not verified(partial, item):
                 partial.unlink()
                 raise ApiError(502, {"detail": f"{item['name']}: SHA-256 mismatch"})
         partial.replace(target)
         return target
-
-    def _stream(self, item: dict[str, Any], partial: Path) -> None:
-        """Download ``item`` through the API into ``partial``, continuing from its size with a
-        ``Range`` request; a dropped connection or a 5xx/429 is retried (policy), a server
-        ignoring ``Range`` (200) restarts the file."""
-        import httpx
-
-        started, attempt = time.monotonic(), 0
-        while True:
-            attempt += 1
-            try:
-                refused = self._stream_once(item, partial)
-            except httpx.TransportError as error:
-                wait = self._wait(attempt, started)
-                if wait is None:
-                    raise self._unreachable("GET", item["url"], error, attempt, started) from error
-                self._sleep(wait)
-                continue
-            if refused is None:
-                return
-            wait = self._wait(attempt, started, refused.headers.get("Retry-After"))
-            if wait is None:
-                self._json(refused)
-            self._sleep(wait or 0.0)
-
-    def _stream_once(self, item: dict[str, Any], partial: Path) -> httpx.Response | None:
-        """One try of :meth:`_stream`: None when the file was received to its end, the
-        (read) answer when its status is worth retrying."""
-        have = partial.stat().st_size if partial.is_file() else 0
-        size = item.get("size")
-        if size is not None and have > size:
-            partial.unlink()
-            have = 0
-        if size is not None and have == size:
-            return None
-        headers = {"Range": f"bytes={have}-", "If-Range": f'"{item["sha256"]}"'} if have else {}
-        with self._http.stream("GET", item["url"], headers=headers) as response:
-            if response.status_code in self.retry.statuses:
-                response.read()
-                return response
-            if response.status_code >= 400:
-                response.read()
-                self._json(response)
-            resume = response.status_code == 206 and _range_start(response) == have
-            with partial.open("ab" if resume else "wb") as out:
-                for chunk in response.iter_bytes():
-                    out.write(chunk)
-        return None
-
-    def _fetch_presigned(self, item: dict[str, Any], partial: Path) -> bool:
-        """Download the artifact's presigned ``download_url`` straight from the object store
-        (no API key is sent there); False when it has none or it fails (expired, unreachable,
-        corrupted): the caller then downloads through the API."""
-        import httpx
-
-        url = item.get("download_url")
-        if not url:
-            return False
-        try:
-            with (
-                httpx.stream("GET", url, timeout=self._http.timeout) as response,
-                partial.open("wb") as out,
-            ):
-                if response.status_code == 200:
-                    for chunk in response.iter_bytes():
-                        out.write(chunk)
-        except httpx.HTTPError:
-            pass
-        if verified(partial, item):
-            return True
-        partial.unlink(missing_ok=True)
-        return False
-
-
-def _range_start(response: httpx.Response) -> int | None:
-    """The first byte a 206 answer carries (``Content-Range: bytes a-b/n``)."""
-    value = response.headers.get("Content-Range", "")
-    unit, _, span = value.partition(" ")
-    first = span.partition("-")[0]
-    return int(first) if unit.lower() == "bytes" and first.isdigit() else None
 
 
 def _finished(job: dict[str, Any]) -> dict[str, Any]:

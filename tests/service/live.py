@@ -4,6 +4,7 @@ restart of the server. The client tests run against it as against a deployed ser
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -41,7 +42,10 @@ class Fault:
     method: str = "GET"
     times: int = 1
     then: Callable[[], None] | None = None
-    """Runs when the fault fires (e.g. restarting the server)."""
+    """Runs in a thread when the fault fires (e.g. restarting the server)."""
+    pause_s: float = 0.0
+    """A ``drop`` waits this long before closing (a restart begun by ``then`` has closed the
+    listening socket by then, so the client's next try finds the server down)."""
 
 
 @dataclass
@@ -79,7 +83,7 @@ class Faults:
             kept = [(k, v) for k, v in scope["headers"] if k.lower() != b"range"]
             await self.app({**scope, "headers": kept}, receive, send)
         else:
-            await self.app(scope, receive, _dropping(send, fault.after))
+            await self.app(scope, receive, _dropping(send, fault.after, fault.pause_s))
 
 
 async def _answer(send: Send, status: int, headers: dict[str, str]) -> None:
@@ -90,7 +94,7 @@ async def _answer(send: Send, status: int, headers: dict[str, str]) -> None:
     await send({"type": "http.response.body", "body": body})
 
 
-def _dropping(send: Send, after: int) -> Send:
+def _dropping(send: Send, after: int, pause_s: float) -> Send:
     sent = 0
 
     async def wrapped(message: Message) -> None:
@@ -99,6 +103,7 @@ def _dropping(send: Send, after: int) -> Send:
             body = message.get("body", b"")
             if sent + len(body) >= after:
                 await send({**message, "body": body[: after - sent], "more_body": True})
+                await asyncio.sleep(pause_s)
                 raise Dropped(f"connection dropped after {after} bytes")
             sent += len(body)
         await send(message)
@@ -132,9 +137,9 @@ class LiveServer:
     def restart(self, down_s: float = 0.5) -> None:
         """Stop, stay down ``down_s`` (clients get connection errors), start again."""
         self.stop()
+        self.restarts += 1
         time.sleep(down_s)
         self.start()
-        self.restarts += 1
 
 
 @pytest.fixture

@@ -12,7 +12,8 @@ Supported layouts (see each module's docstring for the details):
 * ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`);
 * ``tum``: TUM RGB-D, ``rgb.txt`` + ``depth.txt`` + ``groundtruth.txt`` (:mod:`.tum`);
 * ``colmap``: a COLMAP sparse model, ``sparse/0/cameras`` + ``images`` with depth (:mod:`.colmap`);
-* ``redwood``: Redwood / Open3D, ``image|rgb|color/`` + ``depth/`` + a ``.log`` (:mod:`.redwood`).
+* ``redwood``: Redwood / Open3D, ``image|rgb|color/`` + ``depth/`` + a ``.log`` (:mod:`.redwood`);
+* ``arkitscenes``: Apple ARKitScenes, ``lowres_wide/`` + ``lowres_wide.traj`` (:mod:`.arkitscenes`).
 
 Example:
     >>> capture = read_capture("scan.zip", CaptureOptions(stride=5, size=(640, 480)))
@@ -34,6 +35,7 @@ from dcseg.config import NATIVE_BUDGET, CaptureOptions, FrameBudget
 from dcseg.errors import InputError
 from dcseg.io.archive import is_archive, safe_extract
 from dcseg.io.captures import (
+    arkitscenes,
     colmap,
     manifest,
     nerfstudio,
@@ -81,6 +83,7 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "tum": (tum.matches, tum.list_frames, "rgb.txt+depth.txt"),
     "colmap": (colmap.matches, colmap.list_frames, "sparse/0/cameras+images.bin|txt"),
     "redwood": (redwood.matches, redwood.list_frames, "image|rgb|color/+depth/+*.log"),
+    "arkitscenes": (arkitscenes.matches, arkitscenes.list_frames, "lowres_wide/+lowres_wide.traj"),
 }
 """Layout name -> (detector, frame lister, marker shown in messages), in detection order."""
 
@@ -94,7 +97,7 @@ def detect_layout(folder: Path) -> str:
     Returns:
         One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
         ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``,
-        ``"tum"``, ``"colmap"``, ``"redwood"``).
+        ``"tum"``, ``"colmap"``, ``"redwood"``, ``"arkitscenes"``).
 
     Raises:
         InputError: no layout's markers are found.

@@ -110,7 +110,8 @@ def test_unknown_layout_and_bad_paths(tmp_path: Path) -> None:
         r"color/\+depth/\+pose/, results/\+traj\.txt, transforms\.json, metadata\+rgbd/, "
         r"metadata\.json\+rgb/\+depth/, "
         r"keyframes/images\+cameras/, frame-\*\.color\.\*, rgb\.txt\+depth\.txt, "
-        r"sparse/0/cameras\+images\.bin\|txt, image\|rgb\|color/\+depth/\+\*\.log"
+        r"sparse/0/cameras\+images\.bin\|txt, image\|rgb\|color/\+depth/\+\*\.log, "
+        r"lowres_wide/\+lowres_wide\.traj"
     )
     with pytest.raises(InputError, match=expected):
         read_capture(tmp_path)

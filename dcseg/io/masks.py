@@ -9,6 +9,8 @@ A mask folder holds one entry per frame, matched to the capture by file stem. Ea
 * ``<stem>.png``: an integer label map (uint8/uint16), 0 = no mask, every other value = one mask;
   a palette PNG (DAVIS, SAM2, DEVA, VOC) is read by palette index, 0 and 255 (VOC's void) = none.
 * ``<stem>.npy``: an integer label map, negative = no mask, every other value = one mask.
+* ``<stem>.npy`` / ``<stem>.npz``: an ``[M, H, W]`` stack of binary masks, the ``.npz`` with
+  optional per-mask scores (:mod:`dcseg.io.mask_formats.stacks`).
 
 The whole folder (or the JSON file given) may instead be one COCO instance JSON for all frames
 (polygons or RLE; :mod:`dcseg.io.mask_formats.coco`) or one panoptic source (COCO panoptic JSON
@@ -21,7 +23,6 @@ decoded on demand, one frame (or one mask) at a time. Empty masks are dropped.
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 from collections.abc import Callable, Sequence
@@ -48,6 +49,9 @@ from dcseg.io.mask_formats.panoptic import read_panoptic_masks
 from dcseg.io.mask_formats.rle import RLE, encode
 from dcseg.io.mask_formats.rle import decode_rle as _decode_rle
 from dcseg.io.mask_formats.rle import to_rle as _to_rle
+from dcseg.io.mask_formats.sam_folder import read_png_folder
+from dcseg.io.mask_formats.scores import MinScores
+from dcseg.io.mask_formats.stacks import is_stack, read_stack
 from dcseg.types import AgnosticMasks
 
 __all__ = [
@@ -65,8 +69,7 @@ logger = logging.getLogger(__name__)
 _encode = encode
 """Kept under its old name: :mod:`dcseg.warmup` encodes its masks with it."""
 
-MASK_SUFFIXES = (".json", ".png", ".npy")
-METADATA_FILE = "metadata.csv"
+MASK_SUFFIXES = (".json", ".png", ".npy", ".npz")
 
 
 # --------------------------------------------------------------------------- public helpers
@@ -206,27 +209,44 @@ def write_agnostic_json(path: Path, masks: AgnosticMasks) -> None:
 # --------------------------------------------------------------------------- folder reader
 
 _LayoutReader = Callable[
-    [MaskLayout, tuple[int, int] | None, FrameSelection | None], dict[str, AgnosticMasks]
+    [MaskLayout, tuple[int, int] | None, FrameSelection | None, MinScores],
+    dict[str, AgnosticMasks],
 ]
 
 
 def _read_coco(
-    layout: MaskLayout, size: tuple[int, int] | None, frames: FrameSelection | None
+    layout: MaskLayout,
+    size: tuple[int, int] | None,
+    frames: FrameSelection | None,
+    min_scores: MinScores,
 ) -> dict[str, AgnosticMasks]:
-    masks = read_coco_masks(layout, frames)
+    masks = read_coco_masks(layout, frames, min_scores)
     return masks if size is None else {k: resize_masks(m, size) for k, m in masks.items()}
+
+
+def _read_panoptic(
+    layout: MaskLayout,
+    size: tuple[int, int] | None,
+    frames: FrameSelection | None,
+    min_scores: MinScores,
+) -> dict[str, AgnosticMasks]:
+    return read_panoptic_masks(layout, size, frames)  # segments carry no scores
 
 
 _LAYOUT_READERS: dict[str, _LayoutReader] = {
     COCO_INSTANCES: _read_coco,
-    COCO_PANOPTIC: read_panoptic_masks,
-    PANOPTIC_PAIRS: read_panoptic_masks,
+    COCO_PANOPTIC: _read_panoptic,
+    PANOPTIC_PAIRS: _read_panoptic,
 }
 """Readers of the layouts that are not one entry per frame."""
 
 
 def read_agnostic_masks(
-    folder: Path, *, size: tuple[int, int] | None = None, frames: FrameSelection | None = None
+    folder: Path,
+    *,
+    size: tuple[int, int] | None = None,
+    frames: FrameSelection | None = None,
+    min_scores: MinScores | None = None,
 ) -> dict[str, AgnosticMasks]:
     """Read every frame's class-agnostic masks from a folder (formats: see the module docstring),
     in the format :func:`~dcseg.io.mask_formats.detect_masks` finds there.
@@ -235,6 +255,7 @@ def read_agnostic_masks(
         folder: the mask folder (or a COCO JSON file).
         size: optional target ``(width, height)``; masks are rescaled with nearest neighbour.
         frames: read only these frames' masks (a run's keyframes); None = every entry.
+        min_scores: drop masks scoring below these (SAM JSON, COCO, ``.npz``); None = keep all.
 
     Returns:
         Masks keyed by frame stem, in sorted stem order. An empty SAM JSON list gives no masks
@@ -245,9 +266,10 @@ def read_agnostic_masks(
         InputError: listing every problem found (file and reason).
     """
     layout = detect_masks(folder)
+    min_scores = min_scores or MinScores()
     whole = _LAYOUT_READERS.get(layout.kind)
     if whole is not None:
-        return whole(layout, size, frames)
+        return whole(layout, size, frames, min_scores)
     entries, problems = _mask_entries(folder)
     if frames is not None:
         entries, extra = frames.pick(entries, folder, "masks")
@@ -255,7 +277,7 @@ def read_agnostic_masks(
     out: dict[str, AgnosticMasks] = {}
     for stem, entry in sorted(entries.items()):
         try:
-            out[stem] = _read_entry(entry, stem, folder.parent, size)
+            out[stem] = _read_entry(entry, stem, folder.parent, size, min_scores)
         except InputError as err:
             problems.extend(err.problems)
     if problems:
@@ -274,16 +296,20 @@ def _mask_entries(folder: Path) -> tuple[dict[str, Path], list[Problem]]:
     return entries_by_stem(folder, stem_of, "masks")
 
 
-def _read_entry(entry: Path, stem: str, root: Path, size: tuple[int, int] | None) -> AgnosticMasks:
+def _read_entry(
+    entry: Path, stem: str, root: Path, size: tuple[int, int] | None, min_scores: MinScores
+) -> AgnosticMasks:
     """Read one frame's masks in whichever format ``entry`` has, rescaled to ``size``.
 
     Files are named relative to ``root`` in messages and in ``AgnosticMasks.source``.
     """
     shown = display_path(entry, root)
     if entry.is_dir():
-        masks = _read_png_folder(entry, stem, root)
+        masks = read_png_folder(entry, stem, root)
     elif entry.suffix.lower() == ".json":
-        masks = _read_json(entry, stem, shown, size)
+        masks = _read_json(entry, stem, shown, size, min_scores)
+    elif entry.suffix.lower() in (".npz", ".npy") and is_stack(entry):
+        masks = read_stack(entry, stem, root, min_scores)
     else:
         labels, none_below, void = _read_label_map(entry, root)
         if size is not None:
@@ -295,7 +321,9 @@ def _read_entry(entry: Path, stem: str, root: Path, size: tuple[int, int] | None
 # --------------------------------------------------------------------------- SAM JSON
 
 
-def _read_json(path: Path, stem: str, shown: str, size: tuple[int, int] | None) -> AgnosticMasks:
+def _read_json(
+    path: Path, stem: str, shown: str, size: tuple[int, int] | None, min_scores: MinScores
+) -> AgnosticMasks:
     """Read a SAM amg.py JSON file of RLE records."""
     try:
         records = json.loads(path.read_text(encoding="utf-8"))
@@ -307,7 +335,7 @@ def _read_json(path: Path, stem: str, shown: str, size: tuple[int, int] | None) 
     if not isinstance(records, list):
         reason = f"expected a JSON list of SAM mask records, got {type(records).__name__}"
         raise InputError.single(shown, reason)
-    rles, problems = _records_to_rles(records, shown)
+    rles, problems = _records_to_rles(records, shown, min_scores)
     if problems:
         raise InputError(problems)
     if not rles:
@@ -320,8 +348,11 @@ def _read_json(path: Path, stem: str, shown: str, size: tuple[int, int] | None) 
     return AgnosticMasks(stem, height, width, kept, shown)
 
 
-def _records_to_rles(records: list[Any], shown: str) -> tuple[list[RLE], list[Problem]]:
-    """Convert every record's segmentation to a compressed RLE; collect every problem."""
+def _records_to_rles(
+    records: list[Any], shown: str, min_scores: MinScores
+) -> tuple[list[RLE], list[Problem]]:
+    """Convert every record's segmentation to a compressed RLE, leaving out records scoring
+    below ``min_scores``; collect every problem."""
     rles: list[RLE] = []
     problems: list[Problem] = []
     for i, record in enumerate(records):
@@ -330,11 +361,14 @@ def _records_to_rles(records: list[Any], shown: str) -> tuple[list[RLE], list[Pr
             problems.append(Problem(shown, f"record {i} has no 'segmentation'"))
             continue
         rle, reason = _to_rle(seg)
-        if rle is None:
+        keep, bad_score = min_scores.keeps(record)
+        if bad_score:
+            problems.append(Problem(shown, f"record {i}: {bad_score}"))
+        elif rle is None:
             problems.append(Problem(shown, f"record {i}: {reason}"))
         elif rles and rle["size"] != rles[0]["size"]:
             problems.append(Problem(shown, _size_mismatch(i, rle["size"], rles[0]["size"])))
-        else:
+        elif keep:
             rles.append(rle)
     return rles, problems
 
@@ -344,77 +378,6 @@ def _size_mismatch(i: int, got: list[int], first: list[int]) -> str:
         f"record {i}: RLE size {got[1]}x{got[0]} (WxH) disagrees with {first[1]}x{first[0]} "
         "of the other records"
     )
-
-
-# --------------------------------------------------------------------------- SAM PNG folder
-
-
-def _read_png_folder(folder: Path, stem: str, root: Path) -> AgnosticMasks:
-    """Read a SAM amg.py output folder: ``metadata.csv`` plus one binary PNG per mask id."""
-    ids = _metadata_ids(folder / METADATA_FILE, display_path(folder / METADATA_FILE, root))
-    rles: list[RLE] = []
-    problems: list[Problem] = []
-    first: tuple[str, tuple[int, ...]] | None = None
-    for mask_id in ids:
-        png = folder / f"{mask_id}.png"
-        try:
-            mask = _read_binary_png(png, root)
-        except InputError as err:
-            problems.extend(err.problems)
-            continue
-        if first is not None and mask.shape != first[1]:
-            reason = _png_size_mismatch(mask.shape, first)
-            problems.append(Problem(display_path(png, root), reason))
-        else:
-            first = first or (f"{mask_id}.png", mask.shape)
-            if mask.any():
-                rles.append(_encode(mask))
-    if problems:
-        raise InputError(problems)
-    _log_dropped(stem, len(ids) - len(rles))
-    height, width = first[1] if first is not None else (0, 0)
-    return AgnosticMasks(stem, height, width, tuple(rles), display_path(folder, root))
-
-
-def _png_size_mismatch(shape: tuple[int, ...], first: tuple[str, tuple[int, ...]]) -> str:
-    return (
-        f"mask is {shape[1]}x{shape[0]} but {first[0]} in the same folder is "
-        f"{first[1][1]}x{first[1][0]}"
-    )
-
-
-def _metadata_ids(path: Path, shown: str) -> list[str]:
-    """The mask ids listed in a SAM ``metadata.csv`` (its ``id`` column), in file order."""
-    if not path.is_file():
-        raise InputError.single(shown, "metadata.csv not found (SAM amg.py writes it)")
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            rows = list(csv.DictReader(handle))
-    except (OSError, UnicodeDecodeError, csv.Error) as err:
-        raise InputError.single(shown, f"cannot read metadata: {err}") from err
-    if rows and "id" not in rows[0]:
-        raise InputError.single(shown, "metadata.csv has no 'id' column")
-    ids = [str(row["id"]).strip() for row in rows]
-    unsafe = [i for i in ids if not i or Path(i).name != i or i.startswith(".")]
-    if unsafe:
-        raise InputError.single(shown, f"ids must be plain file stems, got {unsafe[:3]!r}")
-    duplicates = sorted({i for i in ids if ids.count(i) > 1})
-    missing = [i for i in ids if not (path.parent / f"{i}.png").is_file()]
-    problems = [Problem(shown, f"id {i!r} is listed more than once") for i in duplicates]
-    problems += [Problem(shown, f"id {i!r} has no PNG ({i}.png not found)") for i in missing]
-    if problems:
-        raise InputError(problems)
-    return ids
-
-
-def _read_binary_png(path: Path, root: Path) -> NDArray[np.bool_]:
-    """A single-channel PNG as a boolean mask (non-zero = inside)."""
-    image = read_image(path, root=root)
-    if image.ndim != 2:
-        reason = f"expected a single-channel binary mask, got {image.shape[2]} channels"
-        raise InputError.single(display_path(path, root), reason)
-    mask: NDArray[np.bool_] = image > 0
-    return mask
 
 
 # --------------------------------------------------------------------------- label maps

@@ -157,7 +157,7 @@ def entry_format(entry: Path) -> str | None:
     if suffix == ".npz":
         return "NPZ mask stack"
     if suffix == ".npy":
-        return "NPY mask stack" if _npy_ndim(entry) == 3 else "NPY map"
+        return "NPY mask stack" if _npy_ndim(entry) in (3, 4) else "NPY map"
     return None
 
 

@@ -22,6 +22,7 @@ from dcseg.io.folders import FrameSelection
 from dcseg.io.images import display_path
 from dcseg.io.mask_formats import MaskLayout
 from dcseg.io.mask_formats.rle import RLE, is_count, to_rle
+from dcseg.io.mask_formats.scores import MinScores
 from dcseg.types import AgnosticMasks
 
 __all__ = ["read_coco_masks"]
@@ -35,8 +36,11 @@ class _Image:
     annotations: list[tuple[int, dict[str, Any]]]
 
 
-def read_coco_masks(layout: MaskLayout, frames: FrameSelection | None) -> dict[str, AgnosticMasks]:
-    """Every (selected) frame's masks at the resolution its ``images`` entry gives.
+def read_coco_masks(
+    layout: MaskLayout, frames: FrameSelection | None, min_scores: MinScores
+) -> dict[str, AgnosticMasks]:
+    """Every (selected) frame's masks at the resolution its ``images`` entry gives, leaving
+    out annotations whose ``score`` is below ``min_scores``.
 
     Raises:
         InputError: listing every problem found (the JSON file, the entry and its field).
@@ -55,9 +59,11 @@ def read_coco_masks(layout: MaskLayout, frames: FrameSelection | None) -> dict[s
         rles: list[RLE] = []
         for i, annotation in image.annotations:
             rle, reason = _mask_of(annotation, image)
-            if rle is None:
+            keep, bad_score = min_scores.keeps(annotation)
+            reason = bad_score or reason
+            if rle is None or bad_score:
                 problems.append(Problem(shown, f"{_where(i, annotation)}: {reason}"))
-            elif mask_util.area(rle) > 0:
+            elif keep and mask_util.area(rle) > 0:
                 rles.append(rle)
         out[stem] = AgnosticMasks(stem, image.height, image.width, tuple(rles), shown)
     if problems:

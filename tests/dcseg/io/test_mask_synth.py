@@ -117,6 +117,19 @@ def test_agnostic_masks_as_one_coco_instance_json(scene: Path, tmp_path: Path) -
     assert report.summary["agnostic_masks"]["format"] == "coco-instances (instances.json)"
 
 
+def test_agnostic_masks_as_npz_stacks(scene: Path, tmp_path: Path) -> None:
+    sam = read_agnostic_masks(scene / "masks" / "agnostic")
+    for name, masks in sam.items():
+        dense = decode_masks(masks)
+        np.savez_compressed(tmp_path / f"{name}.npz", masks=dense, scores=np.ones(len(dense)))
+    read = read_agnostic_masks(tmp_path)
+    for name, masks in sam.items():
+        np.testing.assert_array_equal(decode_masks(read[name]), decode_masks(masks))
+    report = validate_inputs(inputs(scene, tmp_path, scene / "masks" / "semantic"))
+    assert report.ok, report.problems
+    assert report.summary["agnostic_masks"]["format"] == "per-frame: NPZ mask stack x6"
+
+
 def test_validate_names_a_broken_panoptic_folder(scene: Path, tmp_path: Path) -> None:
     name = sorted(originals(scene))[0]
     shutil.rmtree(tmp_path / "pan", ignore_errors=True)

@@ -8,7 +8,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["ServerEvent", "parse_events"]
+__all__ = ["Cursor", "ServerEvent", "parse_events"]
 
 
 @dataclass(frozen=True)
@@ -23,6 +23,25 @@ class ServerEvent:
     """The job's event number (reconnect with ``Last-Event-ID`` set to the last one seen)."""
     retry_ms: int | None = None
     """The reconnection delay the server asks for, when the event set one."""
+
+
+@dataclass
+class Cursor:
+    """Where a reader of a job's stream is: the last event seen (``Last-Event-ID`` for the
+    next connection) and the reconnection delay the server asked for."""
+
+    last: int = 0
+    pause: float = 2.0
+
+    def take(self, event: ServerEvent) -> bool:
+        """Note ``event``; whether it is new (an event, not a comment or one seen before)."""
+        if event.retry_ms is not None:
+            self.pause = event.retry_ms / 1000
+        if event.id is not None:
+            if event.id <= self.last:
+                return False
+            self.last = event.id
+        return bool(event.type)
 
 
 def _decoded(text: str) -> Any:

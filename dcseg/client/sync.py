@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from dcseg.client.downloads import fetch_presigned, resume
 from dcseg.client.errors import ApiError, JobFailed, NetworkError
-from dcseg.client.events import ServerEvent, parse_events
+from dcseg.client.events import Cursor, ServerEvent, parse_events
 from dcseg.client.files import ARCHIVE_TYPES, file_chunks, ready_target, sha256_of, verified
 from dcseg.client.retry import IDEMPOTENT_METHODS, RetryPolicy, retry_after
 from dcseg.client.selection import choose, select
@@ -221,58 +221,58 @@ class Client:
         raises JobFailed when it failed or was canceled, TimeoutError after ``timeout`` s.
 
         A dropped stream is reopened with ``Last-Event-ID`` (nothing is missed or repeated),
-        under the retry policy; when the stream cannot be had (refused, or the policy gives
-        up) the job is polled instead (:meth:`wait`).
+        under the retry policy (its count starts again once events arrive); when the stream
+        cannot be had (refused, or the policy gives up) the job is polled (:meth:`wait`).
         """
         import httpx
 
         deadline = time.monotonic() + timeout
-        last, started, attempt = 0, time.monotonic(), 0
+        cursor = Cursor()
+        started, attempt = time.monotonic(), 0
         while True:
+            seen = cursor.last
             try:
-                outcome = self._stream_events(job_id, last, on_event, deadline)
+                done = self._read_stream(job_id, cursor, on_event, deadline)
             except httpx.TransportError:
+                if cursor.last != seen:
+                    started, attempt = time.monotonic(), 0
                 attempt += 1
                 wait = self._wait(attempt, started)
                 if wait is None:
                     break
                 self._sleep(wait)
                 continue
-            if outcome is None:
+            if done is None:
                 break  # no stream: poll
-            last, done, pause = outcome
             if done:
                 return _finished(self.status(job_id))
             if time.monotonic() >= deadline:
                 raise TimeoutError(f"job {job_id} still running after {timeout} s")
             started, attempt = time.monotonic(), 0
-            self._sleep(pause)
+            self._sleep(cursor.pause)
         remaining = max(0.0, deadline - time.monotonic())
         return self.wait(job_id, timeout=remaining, on_event=on_event)
 
-    def _stream_events(
-        self, job_id: str, after: int, on_event: EventHandler | None, deadline: float
-    ) -> tuple[int, bool, float] | None:
-        """Read one connection of the event stream: (last event id, whether ``completed``
-        came, pause before reconnecting), or None when the service offers no stream."""
-        headers = {"Last-Event-ID": str(after), "Accept": "text/event-stream"}
-        pause = 2.0
+    def _read_stream(
+        self, job_id: str, cursor: Cursor, on_event: EventHandler | None, deadline: float
+    ) -> bool | None:
+        """Read one connection of the event stream from ``cursor.last`` on: True when the
+        ``completed`` event came, False when the stream ended before, None when the service
+        offers no stream."""
+        headers = {"Last-Event-ID": str(cursor.last), "Accept": "text/event-stream"}
         with self._http.stream("GET", f"/v1/jobs/{job_id}/events", headers=headers) as response:
             kind = response.headers.get("content-type", "")
             if response.status_code != 200 or not kind.startswith("text/event-stream"):
                 response.read()
                 return None
             for event in parse_events(response.iter_lines()):
-                pause = event.retry_ms / 1000 if event.retry_ms is not None else pause
-                if event.id is not None:
-                    after = event.id
-                if event.type and on_event is not None:
+                if cursor.take(event) and on_event is not None:
                     on_event(event)
                 if event.type == "completed":
-                    return after, True, 0.0
+                    return True
                 if time.monotonic() >= deadline:
-                    return after, False, 0.0
-        return after, False, pause
+                    return False
+        return False
 
     # -- artifacts and exports ------------------------------------------------------------
 

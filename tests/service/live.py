@@ -143,8 +143,14 @@ class LiveServer:
 
 
 @pytest.fixture
-def live(tmp_path: Path) -> Iterator[LiveServer]:
-    settings = make_settings(tmp_path)
+def live_overrides() -> dict[str, Any]:
+    """Settings of the :func:`live` server (a test module may define its own)."""
+    return {}
+
+
+@pytest.fixture
+def live(tmp_path: Path, live_overrides: dict[str, Any]) -> Iterator[LiveServer]:
+    settings = make_settings(tmp_path, **live_overrides)
     server = LiveServer(Faults(create_app(settings)), free_port())
     server.start()
     try:
@@ -153,17 +159,27 @@ def live(tmp_path: Path) -> Iterator[LiveServer]:
         server.stop()
 
 
-def finished_job(live: LiveServer, scene_tar: bytes, stages: list[Any]) -> str:
-    """A succeeded job whose ``stages`` (FakeStage) wrote their files, created over HTTP."""
+def queued_job(live: LiveServer, scene_tar: bytes) -> str:
+    """A job created over HTTP (upload, then job), not yet run."""
     with httpx.Client(base_url=live.url, headers=AUTH_A) as http:
         upload = http.post("/v1/uploads", content=scene_tar, headers=TAR)
         assert upload.status_code == 201, upload.text
         job = http.post("/v1/jobs", json={"upload_id": upload.json()["id"]})
         assert job.status_code == 202, job.text
     job_id: str = job.json()["id"]
+    return job_id
+
+
+def execute(live: LiveServer, job_id: str, stages: list[Any]) -> str:
+    """Run the job's ``stages`` (FakeStage) as the worker would; its final status."""
     state = live.app.app.state.dcseg  # type: ignore[attr-defined]
-    result = execute_job(job_id, state.store, state.settings, stages=stages, storage=state.storage)
-    assert result == "succeeded", state.store.get_job(job_id)
+    return execute_job(job_id, state.store, state.settings, stages=stages, storage=state.storage)
+
+
+def finished_job(live: LiveServer, scene_tar: bytes, stages: list[Any]) -> str:
+    """A succeeded job whose ``stages`` (FakeStage) wrote their files, created over HTTP."""
+    job_id = queued_job(live, scene_tar)
+    assert execute(live, job_id, stages) == "succeeded"
     return job_id
 
 

@@ -11,9 +11,9 @@ import pytest
 from dcseg.cli import main
 from dcseg.client.selection import DELIVERABLES, human_size
 from tests.service.conftest import KEY_A
-from tests.service.live import LiveServer, finished_job, live, run_stages
+from tests.service.live import LiveServer, finished_job, live, live_overrides, run_stages
 
-__all__ = ["live"]
+__all__ = ["live", "live_overrides"]
 
 BIG = os.urandom(1 << 20)
 SEGMENT = {

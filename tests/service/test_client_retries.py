@@ -12,9 +12,9 @@ import pytest
 
 from dcseg.client import ApiError, Client, NetworkError, RetryPolicy, retry_after
 from tests.service.conftest import KEY_A, free_port
-from tests.service.live import Fault, LiveServer, finished_job, live, run_stages
+from tests.service.live import Fault, LiveServer, finished_job, live, live_overrides, run_stages
 
-__all__ = ["live"]
+__all__ = ["live", "live_overrides"]
 
 PAYLOAD = os.urandom(3 << 20)
 FAST = RetryPolicy(attempts=6, total_s=30, backoff_s=0.05, max_backoff_s=0.2)

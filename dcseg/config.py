@@ -48,6 +48,9 @@ class CaptureOptions:
         min_confidence: for layouts that store an ARKit depth confidence per pixel (Record3D,
             Polycam; levels 0 = low, 1 = medium, 2 = high), depth whose confidence is below this
             level is set to 0 (invalid). 0 = keep all depth (confidence files are not read).
+        sync_tolerance_ms: for layouts that pair colour, depth and poses by timestamp (TUM
+            RGB-D, ARKitScenes), the largest time difference accepted, in milliseconds. None =
+            the layout's own default (TUM 20 ms, as its ``associate.py``; ARKitScenes 5 ms).
     """
 
     stride: int = option(1, bounds=(1, 10_000), help="keep every stride-th frame", flag="--stride")
@@ -73,6 +76,14 @@ class CaptureOptions:
         "2 high; 0 = keep all)",
         flag="--min-confidence",
     )
+    sync_tolerance_ms: float | None = option(
+        None,
+        bounds=(0, 1000),
+        above=True,
+        help="TUM/ARKitScenes: largest time difference (ms) when pairing colour with depth and "
+        "poses (default: TUM 20, ARKitScenes 5)",
+        flag="--sync-tolerance-ms",
+    )
 
     def __post_init__(self) -> None:
         if self.stride < 1:
@@ -85,6 +96,8 @@ class CaptureOptions:
             raise ValueError(f"depth_trunc must be > 0, got {self.depth_trunc}")
         if self.min_confidence not in (0, 1, 2):
             raise ValueError(f"min_confidence must be 0, 1 or 2, got {self.min_confidence}")
+        if self.sync_tolerance_ms is not None and not self.sync_tolerance_ms > 0:
+            raise ValueError(f"sync_tolerance_ms must be > 0, got {self.sync_tolerance_ms}")
 
 
 @dataclass(frozen=True)

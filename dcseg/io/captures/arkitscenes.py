@@ -14,9 +14,10 @@ timestamp, an axis-angle rotation (radians) and a translation (metres) of the
 **world-to-camera** transform, as ARKitScenes' own loader (``tenFpsDataLoader.py``) and
 nerfstudio's parser read it: ``c2w = inverse([R(r) | t])``, in OpenCV camera axes (nerfstudio
 flips its y and z columns to reach OpenGL). Like those loaders, a frame takes the pose whose
-timestamp is within 5 ms of its own, and its ``.pincam`` file may be named 1 ms off; frames
-without a pose (the trajectory starts after the video or has gaps) are dropped with a
-warning, and a capture where no frame has one is an error.
+timestamp is within 5 ms of its own (``CaptureOptions.sync_tolerance_ms`` changes it), and
+its ``.pincam`` file may be named 1 ms off; frames without a pose (the trajectory starts
+after the video or has gaps) are dropped with a warning, and a capture where no frame has one
+is an error.
 
 Frames are the ``lowres_wide`` images, named by their stem (``41069021_3052.083``) and sorted
 by time. Confidence maps are read only with ``CaptureOptions.min_confidence`` > 0.
@@ -139,6 +140,8 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     folder = frames_folder(root)
     assert folder is not None
     warn_if_options_intrinsics(options, "ARKitScenes")
+    ms = options.sync_tolerance_ms
+    tolerance = TOLERANCE if ms is None else ms / 1000.0
     stamps, lines = _trajectory(folder / _TRAJ, rel(folder / _TRAJ, root))
     colour = [
         (m, p) for p in (folder / "lowres_wide").glob("*.png") if (m := _STEM.fullmatch(p.stem))
@@ -147,24 +150,24 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     dropped: list[str] = []
     for match, rgb in sorted(colour, key=lambda mp: float(mp[0].group(2))):
         stamp = float(match.group(2))
-        index = _nearest(stamps, stamp)
+        index = _nearest(stamps, stamp, tolerance)
         if index is None:
             dropped.append(rgb.stem)
             continue
         number, line = lines[index]
         pose_source = f"{rel(folder / _TRAJ, root)}:line {number}"
         _add(root, folder, rgb, match.group(1), stamp, _c2w(line), pose_source, listing)
-    _report_dropped(dropped, len(colour), folder, root, listing)
+    _report_dropped(dropped, len(colour), tolerance, (folder / _TRAJ, root), listing)
     return listing
 
 
-def _nearest(stamps: NDArray[np.float64], stamp: float) -> int | None:
+def _nearest(stamps: NDArray[np.float64], stamp: float, tolerance: float) -> int | None:
     if stamps.size == 0:
         return None
     i = int(np.searchsorted(stamps, stamp))
     near = [j for j in (i - 1, i) if 0 <= j < stamps.size]
     best = min(near, key=lambda j: abs(stamps[j] - stamp))
-    return best if abs(stamps[best] - stamp) <= TOLERANCE + 1e-9 else None
+    return best if abs(stamps[best] - stamp) <= tolerance + 1e-9 else None
 
 
 def _add(
@@ -196,21 +199,19 @@ def _add(
 
 
 def _report_dropped(
-    dropped: list[str], total: int, folder: Path, root: Path, listing: Listing
+    dropped: list[str], total: int, tolerance: float, traj: tuple[Path, Path], listing: Listing
 ) -> None:
     if not dropped:
         return
-    traj = rel(folder / _TRAJ, root)
+    shown, ms = rel(*traj), tolerance * 1000
     if len(dropped) == total:
-        listing.problems.append(
-            Problem(traj, f"no lowres_wide frame has a pose within {TOLERANCE * 1000:g} ms")
-        )
+        listing.problems.append(Problem(shown, f"no lowres_wide frame has a pose within {ms:g} ms"))
         return
     logger.warning(
         "ARKitScenes: %d of %d frames have no pose within %g ms in %s and are dropped (first: %s)",
         len(dropped),
         total,
-        TOLERANCE * 1000,
-        traj,
+        ms,
+        shown,
         dropped[0],
     )

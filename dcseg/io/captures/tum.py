@@ -10,8 +10,9 @@
 
 Timestamps are seconds. Each colour frame is associated with the depth image and the pose
 nearest in time (TUM's ``associate.py`` with its default ``max_difference`` of 20 ms; the
-tolerance is the ``tolerance`` argument of :func:`list_frames`). TUM's camera frame is the
-optical one (x right, y down, z forward: OpenCV's), so poses are used as they are.
+tolerance is ``CaptureOptions.sync_tolerance_ms``, flag ``--sync-tolerance-ms``). TUM's camera
+frame is the optical one (x right, y down, z forward: OpenCV's), so poses are used as they
+are.
 
 What happens to a colour frame without a match within the tolerance:
 
@@ -185,17 +186,20 @@ def _no_match(row: _Row, part: str, source: str, gap: float, tolerance: float) -
     )
 
 
-def list_frames(root: Path, options: CaptureOptions, tolerance: float = TOLERANCE) -> Listing:
+def list_frames(root: Path, options: CaptureOptions) -> Listing:
     """List the frames of a TUM RGB-D folder in time order.
 
     Args:
         root: the folder holding ``rgb.txt``, ``depth.txt`` and ``groundtruth.txt``.
-        options: ``intrinsics`` is used when there is no ``calibration.txt``.
-        tolerance: largest time difference (s) accepted when associating (default 20 ms).
+        options: ``intrinsics`` is used when there is no ``calibration.txt``;
+            ``sync_tolerance_ms`` is the largest time difference accepted when associating
+            (None = :data:`TOLERANCE`, 20 ms).
 
     Raises:
         InputError: no intrinsics, or ``groundtruth.txt`` is missing.
     """
+    ms = options.sync_tolerance_ms
+    tolerance = TOLERANCE if ms is None else ms / 1000.0
     camera = _camera(root, options)
     if not (root / POSES).is_file():
         raise InputError.single(POSES, f"missing: TUM captures need poses ({_POSE_FIELDS})")

@@ -98,6 +98,7 @@ def test_frames_without_pose_are_dropped(
     assert str(info.value) == (
         f"{VIDEO}_frames/lowres_wide.traj: no lowres_wide frame has a pose within 5 ms"
     )
+    assert len(read_capture(root, CaptureOptions(sync_tolerance_ms=7))) == 4
 
 
 def test_malformed_files(rgbd_scene: RgbdScene, tmp_path: Path) -> None:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import argparse
 import logging
 from pathlib import Path
 
@@ -119,8 +120,26 @@ def test_no_depth_within_tolerance(rgbd_scene: RgbdScene, tmp_path: Path) -> Non
         f"rgb.txt:line 5: timestamp {stamps(4)[1]}: no depth image in depth.txt within 20 ms "
         "(the nearest is 23.3 ms away)"
     ]
-    listing = tum.list_frames(root, OPTIONS, tolerance=0.025)
-    assert [s.name for s in listing.specs] == stamps(4) and not listing.problems
+    options = CaptureOptions(intrinsics=OPTIONS.intrinsics, sync_tolerance_ms=25)
+    assert read_capture(root, options).names == tuple(stamps(4))
+
+
+def test_tolerance_is_a_job_option_and_a_flag(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    from dcseg.cli._options import add_groups, capture_options
+    from dcseg.options import build_config, parse_options
+
+    root = write_tum(rgbd_scene, tmp_path)
+    for bad in (0, -5, 1001, "x"):
+        with pytest.raises(InputError) as caught:
+            parse_options({"capture": {"sync_tolerance_ms": bad}})
+        assert [p.path for p in caught.value.problems] == ["options.capture.sync_tolerance_ms"]
+    job = parse_options({"capture": {"sync_tolerance_ms": 2, "intrinsics": [20, 22, 7.5, 5.5]}})
+    with pytest.raises(InputError, match=r"no depth image in depth\.txt within 2 ms"):
+        read_capture(root, build_config("fast", job).capture)
+    parser = argparse.ArgumentParser()
+    add_groups(parser, "capture")
+    args = parser.parse_args(["--sync-tolerance-ms", "2", "--intrinsics", "20,22,7.5,5.5"])
+    assert capture_options(args).sync_tolerance_ms == 2.0
 
 
 def test_pose_line_with_seven_values(rgbd_scene: RgbdScene, tmp_path: Path) -> None:

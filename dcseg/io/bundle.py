@@ -9,13 +9,14 @@ from __future__ import annotations
 from pathlib import Path
 
 BUNDLE_LAYOUT: dict[str, tuple[str, ...]] = {
-    "agnostic_masks": ("masks/agnostic",),
-    "semantic_masks": ("masks/semantic",),
+    "agnostic_masks": ("masks/agnostic", "masks/panoptic"),
+    "semantic_masks": ("masks/semantic", "masks/panoptic"),
     "vocabulary": ("vocabulary.txt", "vocabulary.json"),
     "ground_truth": ("gt/points.ply",),
 }
 """Optional inputs by their names under the bundle root (which holds the capture itself in any
-layout dcseg reads); the first existing candidate of each is used."""
+layout dcseg reads); the first existing candidate of each is used. ``masks/panoptic`` is one
+panoptic source for both kinds of masks (:mod:`dcseg.io.mask_formats.panoptic`)."""
 
 
 def bundle_paths(root: Path) -> dict[str, Path | None]:

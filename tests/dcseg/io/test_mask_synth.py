@@ -55,15 +55,14 @@ def test_class_maps_as_palette_pngs(scene: Path, tmp_path: Path) -> None:
     assert report.summary["agnostic_masks"]["format"] == "per-frame: SAM JSON x6"
 
 
-def test_class_maps_as_coco_panoptic(scene: Path, tmp_path: Path) -> None:
-    """One segment per class present (id = class + 1): the class maps read back unchanged and
-    every segment is one agnostic mask."""
-    maps = originals(scene)
+def write_coco_panoptic(scene: Path, folder: Path) -> None:
+    """The scene's class maps as COCO panoptic: one segment per class present, id = class +
+    1000 (G channel used), category ids = vocabulary index + 1, named in ``categories``."""
     vocabulary = read_vocabulary(scene / "vocabulary.txt")
     annotations = []
-    for i, (name, m) in enumerate(sorted(maps.items())):
+    for i, (name, m) in enumerate(sorted(originals(scene).items())):
         ids = np.where(m.classes < 0, 0, m.classes + 1000)
-        write_panoptic_png(tmp_path / "pan" / "panoptic" / f"{name}.png", ids)
+        write_panoptic_png(folder / "panoptic" / f"{name}.png", ids)
         segments = [
             {"id": int(c) + 1000, "category_id": int(c) + 1, "isthing": 0}
             for c in np.unique(m.classes)
@@ -71,9 +70,14 @@ def test_class_maps_as_coco_panoptic(scene: Path, tmp_path: Path) -> None:
         ]
         annotations.append({"image_id": i, "file_name": f"{name}.png", "segments_info": segments})
     categories = [{"id": i + 1, "name": n, "isthing": 0} for i, n in enumerate(vocabulary.names)]
-    write_json(
-        tmp_path / "pan" / "panoptic.json", {"annotations": annotations, "categories": categories}
-    )
+    write_json(folder / "panoptic.json", {"annotations": annotations, "categories": categories})
+
+
+def test_class_maps_as_coco_panoptic(scene: Path, tmp_path: Path) -> None:
+    """The class maps read back unchanged and every segment is one agnostic mask."""
+    maps = originals(scene)
+    vocabulary = read_vocabulary(scene / "vocabulary.txt")
+    write_coco_panoptic(scene, tmp_path / "pan")
     read = read_semantic_maps(tmp_path / "pan", vocabulary)
     masks = read_agnostic_masks(tmp_path / "pan")
     for name, m in maps.items():
@@ -128,6 +132,19 @@ def test_agnostic_masks_as_npz_stacks(scene: Path, tmp_path: Path) -> None:
     report = validate_inputs(inputs(scene, tmp_path, scene / "masks" / "semantic"))
     assert report.ok, report.problems
     assert report.summary["agnostic_masks"]["format"] == "per-frame: NPZ mask stack x6"
+
+
+def test_bundle_masks_panoptic_is_one_source_for_both(scene: Path, tmp_path: Path) -> None:
+    root = tmp_path / "bundle"
+    shutil.copytree(scene, root)
+    write_coco_panoptic(scene, root / "masks" / "panoptic")
+    shutil.rmtree(root / "masks" / "agnostic")
+    shutil.rmtree(root / "masks" / "semantic")
+    bundle = RunInputs.from_bundle(root)
+    assert bundle.agnostic_masks == bundle.semantic_masks == root / "masks" / "panoptic"
+    report = validate_inputs(bundle)
+    assert report.ok, report.problems
+    assert report.summary["semantic_masks"]["frames"] == 6
 
 
 def test_validate_names_a_broken_panoptic_folder(scene: Path, tmp_path: Path) -> None:

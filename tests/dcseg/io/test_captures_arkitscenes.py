@@ -18,6 +18,7 @@ from dcseg.inputs import RunInputs
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
+from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import RgbdScene, make_scene, mm
 
 VIDEO = "41069021"
@@ -127,6 +128,11 @@ def test_malformed_files(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
         f"{VIDEO}_frames/lowres_depth/{VIDEO}_{stamp(3)}.png: missing (colour "
         f"{VIDEO}_frames/lowres_wide/{VIDEO}_{stamp(3)}.png has no depth)",
     ]
+
+
+def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_arkitscenes(rgbd_scene, tmp_path / "cap")
+    check_zip_with_options(rgbd_scene, root, "arkitscenes")
 
 
 def test_validate_names_the_layout(tmp_path: Path) -> None:

@@ -18,6 +18,7 @@ from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from dcseg.types import Intrinsics
+from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import RgbdScene, make_scene, mm
 
 MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "OPENCV": 4, "FOV": 7}
@@ -283,6 +284,10 @@ def test_rgb_only_needs_depth_for_now(rgbd_scene: RgbdScene, tmp_path: Path) -> 
     )
     report = validate_inputs(RunInputs(capture=root))
     assert [p.path for p in report.problems] == ["depth/"]
+
+
+def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    check_zip_with_options(rgbd_scene, write_colmap(rgbd_scene, tmp_path / "cap"), "colmap")
 
 
 def test_validate_names_the_layout(tmp_path: Path) -> None:

@@ -18,6 +18,7 @@ from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from dcseg.types import Intrinsics
+from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import RgbdScene, make_scene, mm
 
 OPTIONS = CaptureOptions(intrinsics=(20.0, 22.0, 7.5, 5.5))
@@ -136,6 +137,10 @@ def test_counts_and_intrinsics_file(rgbd_scene: RgbdScene, tmp_path: Path) -> No
     next((root / "depth").iterdir()).unlink()
     with pytest.raises(InputError, match=r"^depth/: 3 depth images but 4 colour images in image/"):
         read_capture(root, OPTIONS)
+
+
+def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    check_zip_with_options(rgbd_scene, write_redwood(rgbd_scene, tmp_path / "cap"), "redwood")
 
 
 def test_validate_names_the_layout(tmp_path: Path) -> None:

@@ -18,6 +18,7 @@ from dcseg.inputs import RunInputs
 from dcseg.io.captures import detect_layout, read_capture, tum
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
+from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import RgbdScene, make_scene
 
 OPTIONS = CaptureOptions(intrinsics=(20.0, 22.0, 7.5, 5.5))
@@ -213,6 +214,10 @@ def test_missing_files_and_escaping_paths(rgbd_scene: RgbdScene, tmp_path: Path)
     (root / "groundtruth.txt").unlink()
     with pytest.raises(InputError, match=r"groundtruth\.txt: missing: TUM captures need poses"):
         read_capture(root, OPTIONS)
+
+
+def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    check_zip_with_options(rgbd_scene, write_tum(rgbd_scene, tmp_path / "cap"), "tum")
 
 
 def test_validate_names_the_layout(tmp_path: Path) -> None:

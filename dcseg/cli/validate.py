@@ -15,12 +15,21 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "validate",
         help="check a capture and its masks",
-        description="Check a capture (folder or .zip/.tar) and its masks. Prints a summary and "
-        "exits 0, or lists every problem found (file and reason) and exits 1.",
+        description="Check a capture (folder or .zip/.tar) and its masks. Prints a summary (with "
+        "the mask format detected per folder) and exits 0, or lists every problem found (file "
+        "and reason) and exits 1.",
     )
     parser.add_argument("capture", type=Path, help="capture folder or archive")
-    parser.add_argument("--agnostic-masks", type=Path, help="folder of class-agnostic masks")
-    parser.add_argument("--semantic-masks", type=Path, help="folder of class-aware class maps")
+    parser.add_argument(
+        "--agnostic-masks",
+        type=Path,
+        help="class-agnostic masks: a folder, or a COCO JSON (formats: docs/masks.md)",
+    )
+    parser.add_argument(
+        "--semantic-masks",
+        type=Path,
+        help="class-aware class maps: a folder, or a COCO panoptic JSON (docs/masks.md)",
+    )
     parser.add_argument("--vocabulary", type=Path, help="class names (.txt or .json)")
     parser.add_argument("--gt", type=Path, help="ground-truth PLY (x y z label [instance])")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")

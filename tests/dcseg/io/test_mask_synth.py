@@ -90,7 +90,9 @@ def test_class_maps_as_coco_panoptic(scene: Path, tmp_path: Path) -> None:
     assert report.summary["semantic_masks"]["format"] == "coco-panoptic (panoptic.json)"
 
 
-def test_agnostic_masks_as_one_coco_instance_json(scene: Path, tmp_path: Path) -> None:
+def test_agnostic_masks_as_one_coco_instance_json(
+    scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """Every SAM record of every frame as a COCO annotation (RLE), all frames in one file."""
     sam = read_agnostic_masks(scene / "masks" / "agnostic")
     images: list[dict[str, Any]] = []
@@ -119,6 +121,9 @@ def test_agnostic_masks_as_one_coco_instance_json(scene: Path, tmp_path: Path) -
     )
     assert report.ok, report.problems
     assert report.summary["agnostic_masks"]["format"] == "coco-instances (instances.json)"
+    args = ["validate", str(scene), "--agnostic-masks", str(tmp_path / "coco" / "instances.json")]
+    assert main(args) == 0
+    assert "  format: coco-instances (instances.json)\n" in capsys.readouterr().out
 
 
 def test_agnostic_masks_as_npz_stacks(scene: Path, tmp_path: Path) -> None:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import hashlib
+import tarfile
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 from dcseg.client.errors import ClientError
 
-__all__ = ["ARCHIVE_TYPES", "file_chunks", "ready_target", "sha256_of", "verified"]
+__all__ = ["ARCHIVE_TYPES", "file_chunks", "pack_folder", "ready_target", "sha256_of", "verified"]
 
 ARCHIVE_TYPES = {
     ".zip": "application/zip",
@@ -50,3 +51,13 @@ def ready_target(item: dict[str, Any], dest: Path) -> tuple[Path, Path]:
     target = dest.joinpath(*relative.parts)
     target.parent.mkdir(parents=True, exist_ok=True)
     return target, target.with_name(target.name + ".part")
+
+
+def pack_folder(folder: Path, archive: Path) -> Path:
+    """Write ``folder``'s contents (not the folder itself: its files are at the archive's
+    root, as ``tar -C folder -cf archive .`` does) into the tar ``archive``, file by file
+    (nothing is held in memory); symbolic links are stored as the files they point to."""
+    with tarfile.open(archive, "w", dereference=True) as tar:
+        for path in sorted(folder.rglob("*")):
+            tar.add(path, arcname=path.relative_to(folder).as_posix(), recursive=False)
+    return archive

@@ -19,7 +19,14 @@ from typing import TYPE_CHECKING, Any
 from dcseg.client.downloads import fetch_presigned, resume
 from dcseg.client.errors import ApiError, JobFailed, NetworkError
 from dcseg.client.events import Cursor, ServerEvent, parse_events
-from dcseg.client.files import ARCHIVE_TYPES, file_chunks, ready_target, sha256_of, verified
+from dcseg.client.files import (
+    ARCHIVE_TYPES,
+    file_chunks,
+    pack_folder,
+    ready_target,
+    sha256_of,
+    verified,
+)
 from dcseg.client.retry import IDEMPOTENT_METHODS, RetryPolicy, retry_after
 from dcseg.client.selection import choose, select
 
@@ -146,12 +153,18 @@ class Client:
     # -- uploads and jobs -----------------------------------------------------------------
 
     def upload(self, path: Path, *, idempotency_key: str | None = None) -> dict[str, Any]:
-        """Upload a capture archive (.zip, .tar, .tar.gz); returns the upload resource.
-        With ``idempotency_key`` a failed try is sent again (the service answers a repeat
-        with the first upload)."""
+        """Upload a capture: an archive (.zip, .tar, .tar.gz) or a folder (packed into a tar
+        in a temporary file first); returns the upload resource. With ``idempotency_key`` a
+        failed try is sent again (the service answers a repeat with the first upload)."""
+        if path.is_dir():
+            import tempfile
+
+            with tempfile.TemporaryDirectory(prefix="dcseg-upload-") as tmp:
+                archive = pack_folder(path, Path(tmp) / f"{path.name or 'capture'}.tar")
+                return self.upload(archive, idempotency_key=idempotency_key)
         content_type = ARCHIVE_TYPES.get(path.suffix.lower())
         if content_type is None:
-            raise ValueError(f"{path}: expected a .zip, .tar or .tar.gz archive")
+            raise ValueError(f"{path}: expected a folder or a .zip, .tar or .tar.gz archive")
         headers = {"Content-Type": content_type}
         if idempotency_key:
             headers["Idempotency-Key"] = idempotency_key

@@ -13,7 +13,8 @@ Supported layouts (see each module's docstring for the details):
 * ``tum``: TUM RGB-D, ``rgb.txt`` + ``depth.txt`` + ``groundtruth.txt`` (:mod:`.tum`);
 * ``colmap``: a COLMAP sparse model, ``sparse/0/cameras`` + ``images`` with depth (:mod:`.colmap`);
 * ``redwood``: Redwood / Open3D, ``image|rgb|color/`` + ``depth/`` + a ``.log`` (:mod:`.redwood`);
-* ``arkitscenes``: Apple ARKitScenes, ``lowres_wide/`` + ``lowres_wide.traj`` (:mod:`.arkitscenes`).
+* ``arkitscenes``: Apple ARKitScenes, ``lowres_wide/`` + ``lowres_wide.traj`` (:mod:`.arkitscenes`);
+* ``scannetpp``: ScanNet++ iPhone, ``rgb/`` + ``pose_intrinsic_imu.json`` (:mod:`.scannetpp`).
 
 Example:
     >>> capture = read_capture("scan.zip", CaptureOptions(stride=5, size=(640, 480)))
@@ -44,6 +45,7 @@ from dcseg.io.captures import (
     redwood,
     replica,
     scannet,
+    scannetpp,
     sevenscenes,
     tum,
 )
@@ -84,6 +86,7 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "colmap": (colmap.matches, colmap.list_frames, "sparse/0/cameras+images.bin|txt"),
     "redwood": (redwood.matches, redwood.list_frames, "image|rgb|color/+depth/+*.log"),
     "arkitscenes": (arkitscenes.matches, arkitscenes.list_frames, "lowres_wide/+lowres_wide.traj"),
+    "scannetpp": (scannetpp.matches, scannetpp.list_frames, "rgb/+pose_intrinsic_imu.json"),
 }
 """Layout name -> (detector, frame lister, marker shown in messages), in detection order."""
 
@@ -97,7 +100,8 @@ def detect_layout(folder: Path) -> str:
     Returns:
         One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
         ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``,
-        ``"tum"``, ``"colmap"``, ``"redwood"``, ``"arkitscenes"``).
+        ``"tum"``, ``"colmap"``, ``"redwood"``, ``"arkitscenes"``,
+        ``"scannetpp"``).
 
     Raises:
         InputError: no layout's markers are found.

@@ -111,7 +111,7 @@ def test_unknown_layout_and_bad_paths(tmp_path: Path) -> None:
         r"metadata\.json\+rgb/\+depth/, "
         r"keyframes/images\+cameras/, frame-\*\.color\.\*, rgb\.txt\+depth\.txt, "
         r"sparse/0/cameras\+images\.bin\|txt, image\|rgb\|color/\+depth/\+\*\.log, "
-        r"lowres_wide/\+lowres_wide\.traj"
+        r"lowres_wide/\+lowres_wide\.traj, rgb/\+pose_intrinsic_imu\.json"
     )
     with pytest.raises(InputError, match=expected):
         read_capture(tmp_path)

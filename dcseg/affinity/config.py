@@ -62,6 +62,16 @@ class AffinityConfig:
     min_scale_points: int = option(10, bounds=(2, 1000000))
     """A mask with fewer valid 3D points (after erosion) has no scale and is not used."""
 
+    min_mask_score: float = option(0.0, bounds=(0.0, 1.0))
+    """Class-agnostic masks whose detector ``score`` (COCO results, ``.npz`` ``scores``) is below
+    this do not train the features; 0 = keep all (:mod:`dcseg.io.mask_formats.scores`)."""
+
+    min_predicted_iou: float = option(0.0, bounds=(0.0, 1.0))
+    """Likewise for SAM's ``predicted_iou`` (SAM ``amg.py`` already drops masks below 0.88)."""
+
+    min_stability_score: float = option(0.0, bounds=(0.0, 1.0))
+    """Likewise for SAM's ``stability_score`` (``amg.py`` already drops masks below 0.95)."""
+
     seed: int = option(0, fixed=True)
     """Seed of every random choice (initialisation, views, pixels, scales, pair sampling)."""
 
@@ -86,6 +96,9 @@ class AffinityConfig:
             raise ValueError(f"norm_weight must be >= 0, got {self.norm_weight}")
         if self.min_scale_points < 2:
             raise ValueError(f"min_scale_points must be >= 2, got {self.min_scale_points}")
+        for name in ("min_mask_score", "min_predicted_iou", "min_stability_score"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
 
 
 PAPER = AffinityConfig()

@@ -33,6 +33,7 @@ NOT_IN_SUMMARY = ("views", "config", "capture", "size_rules", "versions", "peak_
 
 def train(run: StageRun) -> StageResult:
     """Cache blending weights and train affinity features on the reconstructed scene."""
+    from dcseg.io.mask_formats.scores import min_scores
     from dcseg.io.masks import read_agnostic_masks
     from dcseg.io.run_output import SavedRun, preview_indices, save_state
     from dcseg.pipeline import train_scene
@@ -46,7 +47,10 @@ def train(run: StageRun) -> StageResult:
     assert run.inputs.agnostic_masks is not None
     with run.clock.phase("read"):
         agnostic = read_agnostic_masks(
-            run.inputs.agnostic_masks, size=plan.size, frames=plan.selection()
+            run.inputs.agnostic_masks,
+            size=plan.size,
+            frames=plan.selection(),
+            min_scores=min_scores(run.config.pipeline.affinity),
         )
     if not any(len(m) for m in agnostic.values()):
         raise InputError.single("class-agnostic masks", "no frame has any mask")

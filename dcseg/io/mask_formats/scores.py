@@ -11,12 +11,15 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["NPZ_SCORE_KEYS", "SCORE_FIELDS", "MinScores"]
+if TYPE_CHECKING:
+    from dcseg.affinity.config import AffinityConfig
+
+__all__ = ["NPZ_SCORE_KEYS", "SCORE_FIELDS", "MinScores", "min_scores"]
 
 SCORE_FIELDS = ("score", "predicted_iou", "stability_score")
 """The record fields read as scores (COCO results / Grounded-SAM, SAM ``amg.py``)."""
@@ -72,3 +75,11 @@ class MinScores:
         for name, values in scores.items():
             keep &= np.asarray(values, dtype=np.float64) >= getattr(self, name)
         return keep
+
+
+def min_scores(affinity: AffinityConfig) -> MinScores:
+    """The thresholds a job sets (``affinity.min_mask_score``, ``affinity.min_predicted_iou``,
+    ``affinity.min_stability_score``): the masks that train the affinity features."""
+    return MinScores(
+        affinity.min_mask_score, affinity.min_predicted_iou, affinity.min_stability_score
+    )

@@ -154,3 +154,19 @@ def test_npz_shape_charged_before_decompressing(tmp_path: Path) -> None:
         read_agnostic_masks(tmp_path)
     with pixel_budget(500_000):
         assert len(read_agnostic_masks(tmp_path)["f"]) == 0
+
+
+def test_job_options_set_the_thresholds_of_the_train_stage() -> None:
+    from dcseg.io.mask_formats.scores import min_scores
+    from dcseg.options import build_config, parse_options
+    from dcseg.stages import TRAIN, key_of
+
+    options = {"affinity": {"min_predicted_iou": 0.9, "min_mask_score": 0.3}}
+    config = build_config("fast", parse_options(options))
+    assert min_scores(config.pipeline.affinity) == MinScores(0.3, 0.9, 0.0)
+    default = build_config("fast", parse_options({}))
+    assert min_scores(default.pipeline.affinity) == MinScores()
+    assert key_of(TRAIN, config, {}) != key_of(TRAIN, default, {})  # no reuse across thresholds
+    with pytest.raises(InputError) as info:
+        parse_options({"affinity": {"min_stability_score": 1.5}})
+    assert "min_stability_score" in str(info.value)

@@ -41,10 +41,8 @@ from __future__ import annotations
 
 import math
 import posixpath
-import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,6 +50,7 @@ from scipy.spatial.transform import Rotation
 
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
+from dcseg.io.captures.binary import BinaryReader, open_binary
 from dcseg.io.captures.common import (
     Camera,
     FrameSpec,
@@ -226,72 +225,10 @@ def _unknown_model(model: str) -> str:
 # --- binary files ------------------------------------------------------------------------------
 
 
-class _Binary:
-    """Little-endian reads that name the file, the field and the byte offset when cut short."""
-
-    def __init__(self, handle: BinaryIO, size: int, shown: str) -> None:
-        self.handle, self.size, self.shown = handle, size, shown
-
-    @property
-    def left(self) -> int:
-        return self.size - self.handle.tell()
-
-    def take(self, fmt: str, field: str) -> tuple[Any, ...]:
-        need = struct.calcsize("<" + fmt)
-        at = self.handle.tell()
-        data = self.handle.read(need)
-        if len(data) < need:
-            raise self.truncated(at, field, need)
-        return struct.unpack("<" + fmt, data)
-
-    def skip(self, need: int, field: str) -> None:
-        if need > self.left:
-            raise self.truncated(self.handle.tell(), field, need)
-        self.handle.seek(need, 1)
-
-    def name(self, field: str) -> str:
-        """A NUL-terminated UTF-8 string."""
-        at, raw = self.handle.tell(), bytearray()
-        while (byte := self.handle.read(1)) != b"\x00":
-            if not byte:
-                raise InputError.single(
-                    self.shown, f"truncated at byte {at}: {field} ends before its NUL terminator"
-                )
-            raw += byte
-        try:
-            return raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise InputError.single(self.shown, f"byte {at}: {field} is not UTF-8") from None
-
-    def count(self, item: str, smallest: int) -> int:
-        (value,) = self.take("Q", f"the number of {item}s")
-        count = int(value)
-        if count * smallest > self.left:
-            raise InputError.single(
-                self.shown,
-                f"truncated: declares {count} {item}s but only {self.left} bytes follow "
-                f"(each takes at least {smallest})",
-            )
-        return count
-
-    def truncated(self, at: int, field: str, need: int) -> InputError:
-        return InputError.single(
-            self.shown,
-            f"truncated at byte {at}: {field} needs {need} bytes, {self.size - at} left",
-        )
-
-
-def _open_binary(path: Path, shown: str) -> tuple[BinaryIO, int]:
-    try:
-        return path.open("rb"), path.stat().st_size
-    except OSError as exc:
-        raise InputError.single(shown, f"cannot read file ({exc.strerror})") from None
-
-
 def _cameras_binary(path: Path, shown: str) -> dict[int, _Camera]:
-    handle, size = _open_binary(path, shown)
+    handle, size = open_binary(path, shown)
     with handle:
-        data = _Binary(handle, size, shown)
+        data = BinaryReader(handle, size, shown)
         cameras: dict[int, _Camera] = {}
         for k in range(data.count("camera", 24)):
             field = f"camera {k + 1}"
@@ -308,10 +245,10 @@ def _cameras_binary(path: Path, shown: str) -> dict[int, _Camera]:
 
 
 def _images_binary(path: Path, shown: str) -> list[_Image]:
-    handle, size = _open_binary(path, shown)
+    handle, size = open_binary(path, shown)
     images: list[_Image] = []
     with handle:
-        data = _Binary(handle, size, shown)
+        data = BinaryReader(handle, size, shown)
         for k in range(data.count("image", _IMAGE_HEADER)):
             field = f"image {k + 1}"
             values = data.take("i7di", f"{field}: id/qvec/tvec/camera id")

@@ -1,7 +1,8 @@
 """A Python client of the dcseg REST API (httpx): :class:`Client`.
 
-It retries what is safe to retry (:class:`RetryPolicy`), resumes downloads, follows a job's
-event stream, and raises :class:`ClientError` subclasses with one-line messages.
+:class:`AsyncClient` is its asyncio twin. Both retry what is safe to retry
+(:class:`RetryPolicy`), resume downloads, follow a job's event stream, and raise
+:class:`ClientError` subclasses with one-line messages.
 
 Example:
     >>> with Client("http://127.0.0.1:8000", api_key="key") as client:  # doctest: +SKIP
@@ -13,6 +14,7 @@ Example:
 
 from __future__ import annotations
 
+from dcseg.client.aio import AsyncClient
 from dcseg.client.connect import DEFAULT_URL, add_connection_options, client_from_args
 from dcseg.client.errors import ApiError, ClientError, JobFailed, NetworkError
 from dcseg.client.events import ServerEvent
@@ -25,6 +27,7 @@ __all__ = [
     "DELIVERABLES",
     "TERMINAL",
     "ApiError",
+    "AsyncClient",
     "Client",
     "ClientError",
     "JobFailed",

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 
     from dcseg.client.sync import Client
 
-__all__ = ["fetch_presigned", "resume"]
+__all__ = ["fetch_presigned", "range_start", "resume"]
 
 
 def resume(client: Client, item: dict[str, Any], partial: Path) -> None:
@@ -62,7 +62,7 @@ def _try(client: Client, item: dict[str, Any], partial: Path) -> httpx.Response 
         if response.status_code >= 400:
             response.read()
             client._json(response)
-        append = response.status_code == 206 and _range_start(response) == have
+        append = response.status_code == 206 and range_start(response) == have
         with partial.open("ab" if append else "wb") as out:
             for chunk in response.iter_bytes():
                 out.write(chunk)
@@ -94,7 +94,7 @@ def fetch_presigned(item: dict[str, Any], partial: Path, timeout: httpx.Timeout)
     return False
 
 
-def _range_start(response: httpx.Response) -> int | None:
+def range_start(response: httpx.Response) -> int | None:
     """The first byte a 206 answer carries (``Content-Range: bytes a-b/n``)."""
     value = response.headers.get("Content-Range", "")
     unit, _, span = value.partition(" ")

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any
+import time
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["ApiError", "ClientError", "JobFailed", "NetworkError"]
+if TYPE_CHECKING:
+    import httpx
+
+__all__ = ["ApiError", "ClientError", "JobFailed", "NetworkError", "checked", "unreachable"]
 
 
 class ClientError(RuntimeError):
@@ -48,3 +52,28 @@ def reason(job: dict[str, Any]) -> str:
     else:
         text = error or job.get("message") or "no reason given"
     return " ".join(str(text).split())
+
+
+def checked(response: httpx.Response) -> dict[str, Any]:
+    """The JSON body of a (read) answer; ApiError with its problem when its status >= 400."""
+    if response.status_code >= 400:
+        try:
+            problem = response.json()
+        except ValueError:
+            problem = {"title": response.reason_phrase, "detail": response.text.strip()}
+        if not isinstance(problem, dict):
+            problem = {"detail": str(problem)}
+        raise ApiError(response.status_code, problem)
+    body: dict[str, Any] = response.json()
+    return body
+
+
+def unreachable(
+    url: object, method: str, error: Exception, attempt: int, started: float
+) -> NetworkError:
+    """The error of a request given up after ``attempt`` tries since ``started`` (monotonic)."""
+    elapsed = time.monotonic() - started
+    reason = str(error) or type(error).__name__
+    return NetworkError(
+        f"{method} {url} failed: {reason} (gave up after {attempt} tries in {elapsed:.1f} s)"
+    )

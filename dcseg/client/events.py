@@ -8,7 +8,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Cursor", "ServerEvent", "parse_events"]
+__all__ = ["Cursor", "EventParser", "ServerEvent", "parse_events"]
 
 
 @dataclass(frozen=True)
@@ -51,26 +51,38 @@ def _decoded(text: str) -> Any:
         return text
 
 
-def parse_events(lines: Iterable[str]) -> Iterator[ServerEvent]:
-    """The events of a stream's lines (without their line ends); a comment line yields a
-    ``type=""`` event at once so that a reader can check its clock while the job is idle."""
-    fields: dict[str, str] = {}
-    data: list[str] = []
-    for line in lines:
+class EventParser:
+    """Turns a stream's lines (without their line ends), fed one by one, into events."""
+
+    def __init__(self) -> None:
+        self.fields: dict[str, str] = {}
+        self.data: list[str] = []
+
+    def feed(self, line: str) -> ServerEvent | None:
+        """The event ``line`` completes (a blank line ends one; a comment line is a
+        ``type=""`` event of its own, so a reader can check its clock while nothing happens)."""
         if line.startswith(":"):
-            yield ServerEvent("", line[1:].strip())
-            continue
+            return ServerEvent("", line[1:].strip())
         if line == "":
-            if data or "event" in fields or "retry" in fields:
-                yield _event(fields, data)
-            fields, data = {}, []
-            continue
+            fields, data = self.fields, self.data
+            self.fields, self.data = {}, []
+            return _event(fields, data) if data or "event" in fields or "retry" in fields else None
         name, _, value = line.partition(":")
         value = value[1:] if value.startswith(" ") else value
         if name == "data":
-            data.append(value)
+            self.data.append(value)
         else:
-            fields[name] = value
+            self.fields[name] = value
+        return None
+
+
+def parse_events(lines: Iterable[str]) -> Iterator[ServerEvent]:
+    """The events of a stream's lines (see :class:`EventParser`)."""
+    parser = EventParser()
+    for line in lines:
+        event = parser.feed(line)
+        if event is not None:
+            yield event
 
 
 def _event(fields: dict[str, str], data: list[str]) -> ServerEvent:

@@ -11,7 +11,15 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from email.utils import parsedate_to_datetime
 
-__all__ = ["IDEMPOTENT_METHODS", "NEVER", "RETRY_STATUSES", "RetryPolicy", "retry_after"]
+__all__ = [
+    "IDEMPOTENT_METHODS",
+    "NEVER",
+    "RETRY_STATUSES",
+    "RetryPolicy",
+    "never_sent",
+    "replayable",
+    "retry_after",
+]
 
 IDEMPOTENT_METHODS = frozenset({"GET", "HEAD", "PUT", "DELETE", "OPTIONS"})
 """Methods safe to send again (RFC 9110 9.2.2); a POST is when it carries an Idempotency-Key."""
@@ -79,3 +87,16 @@ def retry_after(value: str | None, now: datetime | None = None) -> float | None:
     if when.tzinfo is None:
         when = when.replace(tzinfo=UTC)
     return max(0.0, (when - (now or datetime.now(UTC))).total_seconds())
+
+
+def replayable(method: str, headers: dict[str, str] | None) -> bool:
+    """Whether a request may be sent again after a failure that may have reached the server:
+    an idempotent method, or a POST with an ``Idempotency-Key``."""
+    return method in IDEMPOTENT_METHODS or "Idempotency-Key" in (headers or {})
+
+
+def never_sent(error: Exception) -> bool:
+    """Whether the request failed before its connection opened (safe to send again)."""
+    import httpx
+
+    return isinstance(error, httpx.ConnectError | httpx.ConnectTimeout)

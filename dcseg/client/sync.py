@@ -17,7 +17,7 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from dcseg.client.downloads import fetch_presigned, resume
-from dcseg.client.errors import ApiError, JobFailed, NetworkError
+from dcseg.client.errors import ApiError, JobFailed, NetworkError, checked, unreachable
 from dcseg.client.events import Cursor, ServerEvent, parse_events
 from dcseg.client.files import (
     ARCHIVE_TYPES,
@@ -27,7 +27,7 @@ from dcseg.client.files import (
     sha256_of,
     verified,
 )
-from dcseg.client.retry import IDEMPOTENT_METHODS, RetryPolicy, retry_after
+from dcseg.client.retry import RetryPolicy, never_sent, replayable, retry_after
 from dcseg.client.selection import choose, select
 
 if TYPE_CHECKING:  # imported where used: the CLI's argument parser imports this module
@@ -99,7 +99,7 @@ class Client:
         NetworkError. ``body`` makes the request's content afresh for every try."""
         import httpx
 
-        retried = method in IDEMPOTENT_METHODS or "Idempotency-Key" in (headers or {})
+        retried = replayable(method, headers)
         started, attempt = time.monotonic(), 0
         while True:
             attempt += 1
@@ -109,8 +109,7 @@ class Client:
                     method, url, content=content, headers=headers, **kwargs
                 )
             except httpx.TransportError as error:
-                unsent = isinstance(error, httpx.ConnectError | httpx.ConnectTimeout)
-                wait = self._wait(attempt, started) if retried or unsent else None
+                wait = self._wait(attempt, started) if retried or never_sent(error) else None
                 if wait is None:
                     raise self._unreachable(method, url, error, attempt, started) from error
                 self._sleep(wait)
@@ -128,24 +127,10 @@ class Client:
     def _unreachable(
         self, method: str, url: str, error: Exception, attempt: int, started: float
     ) -> NetworkError:
-        elapsed = time.monotonic() - started
-        reason = str(error) or type(error).__name__
-        return NetworkError(
-            f"{method} {self._http.base_url.join(url)} failed: {reason} "
-            f"(gave up after {attempt} tries in {elapsed:.1f} s)"
-        )
+        return unreachable(self._http.base_url.join(url), method, error, attempt, started)
 
     def _json(self, response: httpx.Response) -> dict[str, Any]:
-        if response.status_code >= 400:
-            try:
-                problem = response.json()
-            except ValueError:
-                problem = {"title": response.reason_phrase, "detail": response.text.strip()}
-            if not isinstance(problem, dict):
-                problem = {"detail": str(problem)}
-            raise ApiError(response.status_code, problem)
-        body: dict[str, Any] = response.json()
-        return body
+        return checked(response)
 
     def _get(self, url: str, **kwargs: Any) -> dict[str, Any]:
         return self._json(self._request("GET", url, **kwargs))

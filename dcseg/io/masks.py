@@ -230,7 +230,7 @@ def _read_panoptic(
     frames: FrameSelection | None,
     min_scores: MinScores,
 ) -> dict[str, AgnosticMasks]:
-    return read_panoptic_masks(layout, size, frames)  # segments carry no scores
+    return read_panoptic_masks(layout, size, frames, min_scores)
 
 
 _LAYOUT_READERS: dict[str, _LayoutReader] = {

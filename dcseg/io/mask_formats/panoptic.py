@@ -1,10 +1,10 @@
 """Panoptic segmentations (detectron2, Mask2Former, OneFormer, COCO panoptic): PNG + segments.
 
 A panoptic PNG stores a segment id per pixel as ``id = R + 256 G + 256^2 B`` (panopticapi's
-``rgb2id``; a single-channel PNG holds the id itself), 0 = void. Each id is described by a
-``segments_info`` entry with ``id`` and ``category_id`` (``isthing`` and the rest are not
-needed). One source feeds both readers: every segment is a class-agnostic mask, and its category
-is the class of its pixels.
+``rgb2id``; a single-channel PNG holds the id itself, a palette PNG its index), 0 = void. Each
+id is described by a ``segments_info`` entry with ``id`` and ``category_id`` (``isthing`` is not
+needed; a ``score`` filters the agnostic masks like any score). One source feeds both readers:
+every segment is a class-agnostic mask, and its category is the class of its pixels.
 
 Categories map to the vocabulary by name when the COCO panoptic JSON lists ``categories``
 (``id``, ``name``); otherwise ``category_id`` is the vocabulary index itself (detectron2's
@@ -25,10 +25,16 @@ from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection
 from dcseg.io.images import display_path, read_image, resize_nearest
 from dcseg.io.mask_formats import COCO_PANOPTIC, MaskLayout, load_json
+from dcseg.io.mask_formats.palette import is_palette_png, read_palette_indices
 from dcseg.io.mask_formats.rle import encode
+from dcseg.io.mask_formats.scores import MinScores
 from dcseg.types import AgnosticMasks, SemanticMap, Vocabulary
 
-__all__ = ["iter_panoptic_classes", "read_panoptic_masks"]
+__all__ = ["DEVA_FOLDER", "iter_panoptic_classes", "read_panoptic_masks"]
+
+
+DEVA_FOLDER = "Annotations"
+"""Where DEVA writes the id PNGs that its ``pred.json`` describes."""
 
 
 @dataclass(frozen=True)
@@ -46,10 +52,14 @@ class _Frame:
 
 
 def read_panoptic_masks(
-    layout: MaskLayout, size: tuple[int, int] | None, frames: FrameSelection | None
+    layout: MaskLayout,
+    size: tuple[int, int] | None,
+    frames: FrameSelection | None,
+    min_scores: MinScores | None = None,
 ) -> dict[str, AgnosticMasks]:
     """Every segment of every (selected) frame as one class-agnostic mask, in
-    ``segments_info`` order.
+    ``segments_info`` order; segments whose ``score`` (DEVA writes one) is below
+    ``min_scores`` are left out.
 
     Raises:
         InputError: listing every problem found (file, segment and reason).
@@ -58,11 +68,12 @@ def read_panoptic_masks(
     out: dict[str, AgnosticMasks] = {}
     for stem, frame in sorted(listed.items()):
         try:
-            ids, segments = _read_frame(frame, layout.root, size)
+            ids, segments, low = _read_frame(frame, layout.root, size, min_scores or MinScores())
         except InputError as err:
             problems.extend(err.problems)
             continue
-        rles = tuple(encode(ids == i) for i in segments if (ids == i).any())
+        kept = [i for i in segments if i not in low]
+        rles = tuple(encode(ids == i) for i in kept if (ids == i).any())
         shown = display_path(frame.png, layout.root)
         out[stem] = AgnosticMasks(stem, int(ids.shape[0]), int(ids.shape[1]), rles, shown)
     if problems:
@@ -83,7 +94,7 @@ def iter_panoptic_classes(
     by_name = _category_classes(layout, vocabulary)
     for stem, frame in sorted(listed.items()):
         try:
-            ids, segments = _read_frame(frame, layout.root, size)
+            ids, segments, _ = _read_frame(frame, layout.root, size, MinScores())
             classes = _classes(ids, segments, by_name, vocabulary, frame, layout.root)
         except InputError as err:
             yield from err.problems
@@ -111,11 +122,13 @@ def _frames(
 
 
 def _coco_frames(layout: MaskLayout) -> tuple[dict[str, _Frame], list[Problem]]:
-    """COCO panoptic: ``annotations[i].file_name`` beside the JSON or in the folder named
-    after it (``panoptic_val2017.json`` + ``panoptic_val2017/``)."""
+    """COCO panoptic: ``annotations[i].file_name`` in the folder named after the JSON
+    (``panoptic_val2017.json`` + ``panoptic_val2017/``), beside it, or in DEVA's
+    ``Annotations/`` (``pred.json`` + ``Annotations/``); a ``.jpg`` name means its ``.png``."""
     assert layout.index is not None
     shown = display_path(layout.index, layout.root)
-    folders = (layout.index.parent / layout.index.stem, layout.index.parent)
+    here = layout.index.parent
+    folders = (here / layout.index.stem, here, here / DEVA_FOLDER)
     listed: dict[str, _Frame] = {}
     problems: list[Problem] = []
     for i, annotation in enumerate(layout.data["annotations"]):
@@ -124,7 +137,8 @@ def _coco_frames(layout: MaskLayout) -> tuple[dict[str, _Frame], list[Problem]]:
             reason = f"annotations[{i}].file_name must be a PNG file name, got {name!r}"
             problems.append(Problem(shown, reason))
             continue
-        png = next((f / name for f in folders if (f / name).is_file()), None)
+        names = (name, f"{Path(name).stem}.png")  # DEVA names the frame's image
+        png = next((f / n for n in names for f in folders if (f / n).is_file()), None)
         stem = Path(name).stem
         if png is None:
             where = " or ".join(display_path(f, layout.root) for f in folders)
@@ -156,9 +170,10 @@ def _pair_frames(layout: MaskLayout) -> tuple[dict[str, _Frame], list[Problem]]:
 
 
 def _read_frame(
-    frame: _Frame, root: Path, size: tuple[int, int] | None
-) -> tuple[NDArray[np.int64], dict[int, int]]:
-    """The id map (rescaled to ``size``) and ``{segment id: category_id}``.
+    frame: _Frame, root: Path, size: tuple[int, int] | None, min_scores: MinScores
+) -> tuple[NDArray[np.int64], dict[int, int], set[int]]:
+    """The id map (rescaled to ``size``), ``{segment id: category_id}`` and the ids of the
+    segments scoring below ``min_scores``.
 
     Raises:
         InputError: malformed ``segments_info``, an unreadable PNG, or an id in the PNG that
@@ -166,7 +181,7 @@ def _read_frame(
     """
     raw = frame.segments if frame.coco else load_json(frame.info, root)
     shown_png = display_path(frame.png, root)
-    segments = _segments(raw, frame, root)
+    segments, low = _segments(raw, frame, root, min_scores)
     ids = _panoptic_ids(frame.png, root)
     present = np.unique(ids)
     unknown = [int(i) for i in present if i != 0 and int(i) not in segments]
@@ -182,11 +197,14 @@ def _read_frame(
         raise InputError.single(shown_png, reason)
     if size is not None:
         ids = resize_nearest(ids, size)
-    return ids, segments
+    return ids, segments, low
 
 
-def _segments(raw: Any, frame: _Frame, root: Path) -> dict[int, int]:
-    """``{id: category_id}`` from a ``segments_info`` list (or an object holding one)."""
+def _segments(
+    raw: Any, frame: _Frame, root: Path, min_scores: MinScores
+) -> tuple[dict[int, int], set[int]]:
+    """``{id: category_id}`` from a ``segments_info`` list (or an object holding one), and the
+    ids scoring below ``min_scores``."""
     shown = display_path(frame.info, root)
     where = f"segments_info of {frame.png.name}" if frame.coco else "segments_info"
     if isinstance(raw, dict) and not frame.coco:
@@ -194,6 +212,7 @@ def _segments(raw: Any, frame: _Frame, root: Path) -> dict[int, int]:
     if not isinstance(raw, list):
         raise InputError.single(shown, f"{where} must be a list, got {type(raw).__name__}")
     out: dict[int, int] = {}
+    low: set[int] = set()
     problems: list[Problem] = []
     for i, segment in enumerate(raw):
         bad = [
@@ -203,12 +222,17 @@ def _segments(raw: Any, frame: _Frame, root: Path) -> dict[int, int]:
         ]
         if not bad and segment["id"] in out:
             bad.append(Problem(shown, f"{where}[{i}].id {segment['id']} is repeated"))
+        keep, bad_score = min_scores.keeps(segment) if not bad else (True, "")
+        if bad_score:
+            bad.append(Problem(shown, f"{where}[{i}]: {bad_score}"))
         problems += bad
         if not bad:
             out[segment["id"]] = segment["category_id"]
+            if not keep:
+                low.add(segment["id"])
     if problems:
         raise InputError(problems)
-    return out
+    return out, low
 
 
 def _is_index(value: Any) -> bool:
@@ -216,7 +240,10 @@ def _is_index(value: Any) -> bool:
 
 
 def _panoptic_ids(path: Path, root: Path) -> NDArray[np.int64]:
-    """Segment ids of a panoptic PNG: ``R + 256 G + 256^2 B``, or a single-channel id map."""
+    """Segment ids of a panoptic PNG: ``R + 256 G + 256^2 B``, a single-channel id map, or the
+    indices of a palette PNG (DEVA's and SAM2's id maps)."""
+    if is_palette_png(path):
+        return read_palette_indices(path, root=root).astype(np.int64)
     image = read_image(path, root=root)
     if image.ndim == 2:
         return image.astype(np.int64)

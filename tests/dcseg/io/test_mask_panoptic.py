@@ -154,7 +154,7 @@ def test_error_segments_info_fields_named(tmp_path: Path) -> None:
         read_agnostic_masks(folder)
     reasons = [str(p) for p in info.value.problems]
     assert reasons == [
-        "m/panoptic.json: annotations[2]: nope.png not found in m/panoptic or m",
+        "m/panoptic.json: annotations[2]: nope.png not found in m/panoptic or m or m/Annotations",
         "m/panoptic.json: segments_info of 000.png[0].category_id must be a non-negative "
         "integer, got None",
         "m/panoptic.json: segments_info of 000.png[1].id must be a non-negative integer, got 'x'",
@@ -199,3 +199,38 @@ def test_sam_json_beside_a_label_png_is_not_a_pair(tmp_path: Path) -> None:
     write_panoptic_png(tmp_path / "m" / "a.png", np.ones((1, 1)))
     with pytest.raises(InputError, match="several formats"):
         read_agnostic_masks(tmp_path / "m")
+
+
+def test_deva_style_palette_ids_jpg_names_and_scores(tmp_path: Path) -> None:
+    """DEVA: palette PNG of segment ids, pred.json naming the frame's image, segment scores."""
+    from dcseg.io.mask_formats.scores import MinScores
+    from tests.dcseg.io.mask_files import write_palette_png
+
+    ids = np.zeros((6, 8), dtype=np.uint8)
+    ids[:3] = 1
+    ids[3:, :4] = 2
+    ids[3:, 4:] = 3
+    write_palette_png(tmp_path / "deva" / "Annotations" / "00000.png", ids)
+    segments = [
+        {"id": 1, "category_id": 0, "score": 0.9},
+        {"id": 2, "category_id": 2, "score": 0.4},
+        {"id": 3, "category_id": 3, "score": 0.8},
+    ]
+    annotations = [{"file_name": "00000.jpg", "segments_info": segments}]
+    categories = [{"id": i, "name": n} for i, n in enumerate(VOCABULARY.names)]
+    data = {"annotations": annotations, "categories": categories}
+    write_json(tmp_path / "deva" / "pred.json", data)
+    masks = read_agnostic_masks(tmp_path / "deva")["00000"]
+    np.testing.assert_array_equal(decode_masks(masks), [ids == 1, ids == 2, ids == 3])
+    kept = read_agnostic_masks(tmp_path / "deva", min_scores=MinScores(score=0.5))["00000"]
+    np.testing.assert_array_equal(decode_masks(kept), [ids == 1, ids == 3])
+    classes = read_semantic_maps(tmp_path / "deva", VOCABULARY)["00000"].classes
+    np.testing.assert_array_equal(classes, np.choose(ids, [-1, 0, 2, 3]))
+
+
+def test_error_bad_segment_score(tmp_path: Path) -> None:
+    folder = tmp_path / "pan"
+    write_panoptic_png(folder / "f0.png", np.full((2, 2), 9))
+    write_json(folder / "f0.json", [{"id": 9, "category_id": 1, "score": "high"}])
+    with pytest.raises(InputError, match=r"pan/f0.json: segments_info\[0\]: 'score' must be a"):
+        read_agnostic_masks(folder)

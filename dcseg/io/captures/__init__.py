@@ -14,7 +14,8 @@ Supported layouts (see each module's docstring for the details):
 * ``colmap``: a COLMAP sparse model, ``sparse/0/cameras`` + ``images`` with depth (:mod:`.colmap`);
 * ``redwood``: Redwood / Open3D, ``image|rgb|color/`` + ``depth/`` + a ``.log`` (:mod:`.redwood`);
 * ``arkitscenes``: Apple ARKitScenes, ``lowres_wide/`` + ``lowres_wide.traj`` (:mod:`.arkitscenes`);
-* ``scannetpp``: ScanNet++ iPhone, ``rgb/`` + ``pose_intrinsic_imu.json`` (:mod:`.scannetpp`).
+* ``scannetpp``: ScanNet++ iPhone, ``rgb/`` + ``pose_intrinsic_imu.json`` (:mod:`.scannetpp`);
+* ``scannet-sens``: a raw ScanNet ``.sens`` file, given like an archive (:mod:`.sens`).
 
 Example:
     >>> capture = read_capture("scan.zip", CaptureOptions(stride=5, size=(640, 480)))
@@ -46,6 +47,7 @@ from dcseg.io.captures import (
     replica,
     scannet,
     scannetpp,
+    sens,
     sevenscenes,
     tum,
 )
@@ -149,7 +151,8 @@ def list_capture(
     """List a capture's frames without decoding any image.
 
     An archive (or a Record3D ``.r3d`` file, a zip) is extracted safely into a temporary folder
-    that lives as long as the block.
+    that lives as long as the block; a ScanNet ``.sens`` file is decoded into one
+    (:mod:`.sens`, layout ``scannet-sens``).
 
     Args:
         path: a capture folder or an archive of one.
@@ -168,9 +171,18 @@ def list_capture(
         return
     if not path.exists():
         raise InputError.single(str(path), "does not exist")
+    if path.suffix.lower() == sens.SENS_SUFFIX:
+        with tempfile.TemporaryDirectory(prefix="dcseg-capture-") as tmp:
+            folder = sens.extract(path, Path(tmp))
+            yield CaptureListing(
+                folder, str(path), "scannet-sens", scannet.list_frames(folder, options)
+            )
+        return
     if not (is_archive(path) or path.suffix.lower() == record3d.R3D_SUFFIX):
         raise InputError.single(
-            str(path), "not a folder, a .zip/.tar/.tar.gz/.tgz archive of one, or a .r3d file"
+            str(path),
+            "not a folder, a .zip/.tar/.tar.gz/.tgz archive of one, or a .r3d file "
+            "or a ScanNet .sens file",
         )
     with tempfile.TemporaryDirectory(prefix="dcseg-capture-") as tmp:
         folder = safe_extract(path, Path(tmp))

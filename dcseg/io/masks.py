@@ -3,7 +3,8 @@
 A mask folder holds one entry per frame, matched to the capture by file stem. Each entry is one of:
 
 * ``<stem>.json``: SAM ``amg.py --convert-to-rle`` output, a JSON list of records whose
-  ``segmentation`` is a COCO RLE (compressed string counts, or uncompressed list counts).
+  ``segmentation`` is a COCO RLE (compressed string counts, or uncompressed list counts); or
+  Grounded-SAM-2's object with such records (and their ``score``) under ``annotations``.
 * ``<stem>/``: SAM ``amg.py`` folder output, binary PNGs ``<id>.png`` (0/255) listed by the
   ``id`` column of ``metadata.csv``.
 * ``<stem>.png``: an integer label map (uint8/uint16), 0 = no mask, every other value = one mask;
@@ -332,6 +333,8 @@ def _read_json(
         raise InputError.single(shown, reason) from err
     except (OSError, UnicodeDecodeError) as err:
         raise InputError.single(shown, f"cannot read file: {err}") from err
+    if isinstance(records, dict) and isinstance(records.get("annotations"), list):
+        records = records["annotations"]  # Grounded-SAM-2: one object per image
     if not isinstance(records, list):
         reason = f"expected a JSON list of SAM mask records, got {type(records).__name__}"
         raise InputError.single(shown, reason)

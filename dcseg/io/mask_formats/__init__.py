@@ -9,8 +9,8 @@ A path given as ``--agnostic-masks`` / ``--semantic-masks`` (or a bundle's ``mas
   ``segments_info``) with its PNGs beside it or in the folder named after it;
 * ``panoptic-pairs``: per frame ``<stem>.png`` (panoptic ids) and ``<stem>.json`` (its
   ``segments_info``: a list, or an object with that key), as detectron2 users save them;
-* ``per-frame``: one entry per frame (SAM JSON, SAM PNG folder, label map, palette PNG, class
-  map, ``[M, H, W]`` stack), each read by its own extension and header.
+* ``per-frame``: one entry per frame (SAM JSON, Grounded-SAM-2 JSON, SAM PNG folder, label map,
+  palette PNG, class map, ``[M, H, W]`` stack), each read by its own extension and header.
 
 Only JSON files are opened to decide (images are not decoded), so detection is cheap enough to
 run before every read and in ``dcseg validate``.
@@ -83,11 +83,15 @@ def detect_masks(path: Path) -> MaskLayout:
         raise InputError.single(str(path), "mask folder not found (or not a folder)")
     files = {p.name: p for p in path.iterdir() if not p.name.startswith(".") and p.is_file()}
     stems = Counter(Path(name).stem for name in files)
-    for file in sorted(files.values()):
-        if file.suffix.lower() == ".json" and stems[file.stem] == 1 and _starts_with(file, b"{"):
-            data = load_json(file, path.parent)
-            if isinstance(data, dict) and "annotations" in data:
-                return MaskLayout(_coco_kind(data, file, path.parent), path, file, data)
+    objects = [
+        file
+        for file in sorted(files.values())
+        if file.suffix.lower() == ".json" and stems[file.stem] == 1 and _starts_with(file, b"{")
+    ]
+    if len(objects) == 1:  # one dataset file; several are per-frame records (Grounded-SAM-2)
+        data = load_json(objects[0], path.parent)
+        if _is_coco(data):
+            return MaskLayout(_coco_kind(data, objects[0], path.parent), path, objects[0], data)
     for file in sorted(files.values()):
         png = file.with_suffix(".png")
         if file.suffix.lower() == ".json" and png.name in files and _is_segments_info(file):
@@ -107,6 +111,16 @@ def load_json(path: Path, root: Path) -> Any:
         raise InputError.single(shown, reason) from err
     except (OSError, UnicodeDecodeError) as err:
         raise InputError.single(shown, f"cannot read file: {err}") from err
+
+
+def _is_coco(data: Any) -> bool:
+    """A COCO dataset file: ``annotations`` with ``images`` (instances), or with
+    ``segments_info`` (panoptic; DEVA's ``pred.json`` lists no images). A per-frame
+    Grounded-SAM-2 result has ``annotations`` only."""
+    if not isinstance(data, dict) or not isinstance(data.get("annotations"), list):
+        return False
+    panoptic = any(isinstance(a, dict) and "segments_info" in a for a in data["annotations"])
+    return panoptic or "images" in data
 
 
 def _coco_kind(data: Any, path: Path, root: Path) -> str:
@@ -149,7 +163,7 @@ def entry_format(entry: Path) -> str | None:
     if entry.is_dir():
         return "SAM PNG folder"
     if suffix == ".json":
-        return "SAM JSON"
+        return "Grounded-SAM JSON" if _starts_with(entry, b"{") else "SAM JSON"
     if suffix == ".png":
         from dcseg.io.mask_formats.palette import is_palette_png
 

@@ -170,3 +170,34 @@ def test_job_options_set_the_thresholds_of_the_train_stage() -> None:
     with pytest.raises(InputError) as info:
         parse_options({"affinity": {"min_stability_score": 1.5}})
     assert "min_stability_score" in str(info.value)
+
+
+def grounded_sam2_result(masks: np.ndarray, scores: list[float]) -> dict[str, Any]:
+    """One image's result as Grounded-SAM-2's demo writes it (``single_mask_to_rle``)."""
+    annotations = []
+    for mask, score in zip(masks, scores, strict=True):
+        rle = mask_util.encode(np.array(mask[:, :, None], order="F", dtype="uint8"))[0]
+        rle["counts"] = rle["counts"].decode("utf-8")
+        annotations.append(
+            {"class_name": "chair", "bbox": [0, 0, 1, 1], "segmentation": rle, "score": score}
+        )
+    height, width = masks.shape[1:]
+    return {
+        "image_path": "frames/f.jpg",
+        "annotations": annotations,
+        "box_format": "xyxy",
+        "img_width": width,
+        "img_height": height,
+    }
+
+
+@pytest.mark.parametrize("frames", [1, 2])
+def test_grounded_sam2_per_frame_results(tmp_path: Path, frames: int) -> None:
+    masks = stack()[:2]
+    for i in range(frames):
+        write_json(tmp_path / f"f{i}.json", grounded_sam2_result(masks, [0.8, 0.3]))
+    assert describe_layout(detect_masks(tmp_path)) == f"per-frame: Grounded-SAM JSON x{frames}"
+    read = read_agnostic_masks(tmp_path)
+    np.testing.assert_array_equal(decode_masks(read["f0"]), masks)
+    kept = read_agnostic_masks(tmp_path, min_scores=MinScores(score=0.5))["f0"]
+    np.testing.assert_array_equal(decode_masks(kept), masks[[0]])

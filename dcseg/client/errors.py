@@ -44,13 +44,20 @@ class JobFailed(ClientError):
 
 
 def reason(job: dict[str, Any]) -> str:
-    """A failed or canceled job's reason on one line (its error's message, or its message)."""
+    """A failed or canceled job's reason on one line: its error (type and detail), else the
+    stage it was canceled in, else its last message."""
     error = job.get("error")
+    progress = job.get("progress") or {}
     if isinstance(error, dict):
         kind, detail = error.get("type"), error.get("detail") or error.get("message")
         text = f"{kind}: {detail}" if kind and detail else detail or kind or str(error)
+    elif error:
+        text = str(error)
+    elif job.get("status") == "canceled":
+        stage = job.get("stage") or progress.get("stage")
+        text = f"canceled on request during {stage}" if stage else "canceled on request"
     else:
-        text = error or job.get("message") or "no reason given"
+        text = job.get("message") or progress.get("message") or "no reason given"
     return " ".join(str(text).split())
 
 

@@ -8,11 +8,12 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
+import httpx
 import pytest
 
 from dcseg.cli import main
 from dcseg.client import Client, JobFailed, RetryPolicy, ServerEvent
-from tests.service.conftest import KEY_A
+from tests.service.conftest import AUTH_A, KEY_A
 from tests.service.live import Fault, LiveServer, execute, live, queued_job
 from tests.worker.fakes import FakeStage
 
@@ -112,3 +113,21 @@ def test_timeouts_and_unknown_jobs(live, scene_tar, capsys):
     assert capsys.readouterr().err == f"dcseg wait: job {job} still running after 0.5 s\n"
     assert _wait(live, "no-such-job", "--quiet") == 4
     assert capsys.readouterr().err.startswith("dcseg wait: HTTP 404 ")
+
+
+def test_a_canceled_job_exits_1_naming_the_stage(live, scene_tar, capsys):
+    job = queued_job(live, scene_tar)
+    cancel = httpx.post(f"{live.url}/v1/jobs/{job}:cancel", headers=AUTH_A)
+    assert cancel.status_code < 300, cancel.text
+    assert _wait(live, job, "--quiet") == 1
+    assert capsys.readouterr().err == f"dcseg wait: job {job} canceled: canceled on request\n"
+
+
+def test_reasons_are_one_line():
+    from dcseg.client.errors import reason
+
+    error = {"type": "invalid-input", "detail": "frames/0.png:\n unreadable"}
+    assert reason({"status": "failed", "error": error}) == "invalid-input: frames/0.png: unreadable"
+    canceled = {"status": "canceled", "error": None, "progress": {"stage": "segment"}}
+    assert reason(canceled) == "canceled on request during segment"
+    assert reason({"status": "failed", "error": None}) == "no reason given"

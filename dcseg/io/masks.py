@@ -225,19 +225,10 @@ def _read_coco(
     return masks if size is None else {k: resize_masks(m, size) for k, m in masks.items()}
 
 
-def _read_panoptic(
-    layout: MaskLayout,
-    size: tuple[int, int] | None,
-    frames: FrameSelection | None,
-    min_scores: MinScores,
-) -> dict[str, AgnosticMasks]:
-    return read_panoptic_masks(layout, size, frames, min_scores)
-
-
 _LAYOUT_READERS: dict[str, _LayoutReader] = {
     COCO_INSTANCES: _read_coco,
-    COCO_PANOPTIC: _read_panoptic,
-    PANOPTIC_PAIRS: _read_panoptic,
+    COCO_PANOPTIC: read_panoptic_masks,
+    PANOPTIC_PAIRS: read_panoptic_masks,
 }
 """Readers of the layouts that are not one entry per frame."""
 
@@ -256,7 +247,8 @@ def read_agnostic_masks(
         folder: the mask folder (or a COCO JSON file).
         size: optional target ``(width, height)``; masks are rescaled with nearest neighbour.
         frames: read only these frames' masks (a run's keyframes); None = every entry.
-        min_scores: drop masks scoring below these (SAM JSON, COCO, ``.npz``); None = keep all.
+        min_scores: drop masks scoring below these (where the format gives scores: SAM and
+            Grounded-SAM JSON, COCO, panoptic segments, ``.npz``); None = keep all.
 
     Returns:
         Masks keyed by frame stem, in sorted stem order. An empty SAM JSON list gives no masks

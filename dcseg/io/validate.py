@@ -26,6 +26,7 @@ from dcseg.io.ground_truth import read_ground_truth
 from dcseg.io.images import header_pixels, pixel_budget
 from dcseg.io.limits import LimitProblem
 from dcseg.io.mask_formats import describe_layout, detect_masks
+from dcseg.io.mask_formats.stacks import stack_pixels
 from dcseg.io.masks import read_agnostic_masks
 from dcseg.io.semantic import iter_semantic_maps, read_vocabulary
 from dcseg.types import AgnosticMasks, Capture, Frame, GroundTruth, SemanticMap, Vocabulary
@@ -33,7 +34,7 @@ from dcseg.types import AgnosticMasks, Capture, Frame, GroundTruth, SemanticMap,
 ASPECT_TOLERANCE = 0.02
 """Largest relative difference between a mask's and its frame's aspect ratio."""
 
-_DECODED_SUFFIXES = (".png", ".npy")
+_DECODED_SUFFIXES = (".png", ".npy", ".npz")
 """Files of mask folders that validation decodes (SAM JSON holds RLEs, never decoded)."""
 
 T = TypeVar("T")
@@ -119,6 +120,11 @@ def _decoded_files(
                     yield path
 
 
+def _header_pixels(path: Path) -> int | None:
+    """Pixels decoding ``path`` gives, from its header (an ``.npz`` mask stack's too)."""
+    return stack_pixels(path) if path.suffix.lower() == ".npz" else header_pixels(path)
+
+
 def _over_pixel_budget(
     paths: RunInputs, listed: CaptureListing | None, options: CaptureOptions, max_pixels: int
 ) -> Problem | None:
@@ -126,7 +132,7 @@ def _over_pixel_budget(
     total = 0
     files = 0
     for path in _decoded_files(paths, listed, options):
-        total += header_pixels(path) or 0
+        total += _header_pixels(path) or 0
         files += 1
         if total > max_pixels:
             return LimitProblem(
@@ -301,9 +307,7 @@ def _format_of(path: Path) -> str:
 def _check_ground_truth(
     path: Path, vocabulary: Vocabulary | None, problems: list[Problem]
 ) -> dict[str, Any] | None:
-    if vocabulary is None:
-        problems.append(Problem(str(path), "ground truth labels need a vocabulary (--vocabulary)"))
-        return None
+    vocabulary = vocabulary or Vocabulary(())  # class-agnostic: the instances are scored
     gt = _attempt(problems, lambda: read_ground_truth(path, len(vocabulary)))
     return None if gt is None else summarise_ground_truth(gt, vocabulary)
 

@@ -22,7 +22,7 @@ from dcseg.io.mask_formats.rle import RLE, encode
 from dcseg.io.mask_formats.scores import NPZ_SCORE_KEYS, MinScores
 from dcseg.types import AgnosticMasks
 
-__all__ = ["is_stack", "read_stack"]
+__all__ = ["is_stack", "read_stack", "stack_pixels"]
 
 _MASK_DTYPES = "bu"
 """Bool or unsigned integers: non-zero = inside."""
@@ -36,6 +36,15 @@ def is_stack(path: Path) -> bool:
         return int(np.load(path, mmap_mode="r", allow_pickle=False).ndim) in (3, 4)
     except (OSError, ValueError, EOFError):
         return False
+
+
+def stack_pixels(path: Path) -> int | None:
+    """``M * H * W`` of a stack from its header (nothing decompressed), or None if unreadable."""
+    try:
+        shape, _ = _header(path, path.name)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+        return None
+    return int(np.prod(shape, dtype=np.int64))
 
 
 def read_stack(path: Path, stem: str, root: Path, min_scores: MinScores) -> AgnosticMasks:

@@ -137,6 +137,11 @@ def test_agnostic_masks_as_npz_stacks(scene: Path, tmp_path: Path) -> None:
     report = validate_inputs(inputs(scene, tmp_path, scene / "masks" / "semantic"))
     assert report.ok, report.problems
     assert report.summary["agnostic_masks"]["format"] == "per-frame: NPZ mask stack x6"
+    frames = 6 * 64 * 48
+    budget = 3 * frames + 1  # colour, depth and class maps fit; the stacks' headers do not
+    over = validate_inputs(inputs(scene, tmp_path, scene / "masks" / "semantic"), max_pixels=budget)
+    (problem,) = over.problems
+    assert problem.path.endswith(".npz") and "nothing was decoded" in problem.reason
 
 
 def test_bundle_masks_panoptic_is_one_source_for_both(scene: Path, tmp_path: Path) -> None:

@@ -197,15 +197,17 @@ class Client:
     ) -> dict[str, Any]:
         """Poll until the job ends (honouring ``Retry-After``); raise JobFailed unless it
         succeeded, TimeoutError after ``timeout`` seconds. ``on_event`` receives each
-        poll's progress as a ``progress`` event."""
+        poll's progress as a ``progress`` event, and the end as a ``completed`` one."""
         deadline = time.monotonic() + timeout
         while True:
             response = self._request("GET", f"/v1/jobs/{job_id}")
             job = self._json(response)
-            if job["status"] in TERMINAL:
-                return _finished(job)
             if on_event is not None and job.get("progress"):
                 on_event(ServerEvent("progress", job["progress"]))
+            if job["status"] in TERMINAL:
+                if on_event is not None:
+                    on_event(ServerEvent("completed", {"status": job["status"]}))
+                return _finished(job)
             delay = poll if poll is not None else retry_after(response.headers.get("Retry-After"))
             delay = 2.0 if delay is None else delay
             if time.monotonic() + delay > deadline:

@@ -121,3 +121,16 @@ def test_unknown_job_exits_4(live, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("dcseg download: HTTP 404") and "Traceback" not in err
     assert err.count("\n") == 1
+
+
+def test_an_unreachable_service_exits_3(tmp_path, monkeypatch, capsys):
+    from dcseg.client import RetryPolicy
+    from tests.service.conftest import free_port
+
+    policy = RetryPolicy(attempts=2, backoff_s=0.01)
+    monkeypatch.setattr("dcseg.client.sync.RetryPolicy", lambda: policy)
+    url = f"http://127.0.0.1:{free_port()}"
+    assert main(["download", "j", str(tmp_path / "out"), "--url", url]) == 3
+    err = capsys.readouterr().err
+    assert err.startswith(f"dcseg download: GET {url}/v1/jobs/j/artifacts failed")
+    assert "after 2 tries" in err and err.count("\n") == 1

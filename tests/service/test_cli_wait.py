@@ -131,3 +131,11 @@ def test_reasons_are_one_line():
     canceled = {"status": "canceled", "error": None, "progress": {"stage": "segment"}}
     assert reason(canceled) == "canceled on request during segment"
     assert reason({"status": "failed", "error": None}) == "no reason given"
+
+
+def test_poll_shows_progress_without_the_stream(live, running, capsys):
+    job, _ = running
+    assert _wait(live, job, "--poll") == 0
+    printed = capsys.readouterr()
+    assert printed.out == f"{job} succeeded\n" and "%|" in printed.err  # the bar was drawn
+    assert _requests(live, f"/v1/jobs/{job}/events") == []

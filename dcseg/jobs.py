@@ -49,7 +49,8 @@ def run_job(
     device: str = "auto",
 ) -> dict[str, Any]:
     """Validate, reconstruct (or take ``inputs.scene``), train, segment, evaluate; publish
-    ``out``.
+    ``out``. Without class-aware masks and vocabulary the run is class-agnostic (objects
+    without classes, instance metrics only).
 
     ``device`` (:func:`dcseg.devices.resolve_device`) is where reconstruction, the cache's
     projection and affinity training run; clustering and classification run on the host.
@@ -57,9 +58,11 @@ def run_job(
     Returns:
         The ``run.json`` record.
     """
-    missing = inputs.missing()
-    if missing:
-        raise InputError.single(str(inputs.capture), f"no {', '.join(missing)} given")
+    if inputs.agnostic_masks is None:
+        raise InputError.single(str(inputs.capture), "no agnostic_masks given")
+    if (inputs.semantic_masks is None) != (inputs.vocabulary is None):
+        reason = "class-aware masks and a vocabulary go together (give both or neither)"
+        raise InputError.single("semantic masks", reason)
     work = staging_dir(out)
     try:
         results = run_stages(STAGES, inputs, config, work, on_progress, device=device)

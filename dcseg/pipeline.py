@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
 from dcseg.assign.consistency import mask_agreement
@@ -24,6 +25,7 @@ from dcseg.cluster.features import as_numpy
 from dcseg.cluster.outliers import adaptive_radius
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import CacheConfig, PipelineConfig
+from dcseg.evaluate.instances import instance_metrics
 from dcseg.evaluate.points import transfer_opaque
 from dcseg.evaluate.stage import evaluate_scenes
 from dcseg.evaluate.views import vote_views
@@ -148,7 +150,9 @@ def segment_scene(
     on_progress("cluster", 1.0, f"{k} clusters")
     a = cfg.assign
     labelled = [v.name for v in trained.views if v.name in semantic]
-    needed = (a.min_share_ratio > 0 and bool(labelled)) or a.objects or a.complete
+    needed = n_classes > 0 and (
+        (a.min_share_ratio > 0 and bool(labelled)) or a.objects or a.complete
+    )
     # the pass that renders the cluster maps also sums the class evidence that the
     # consistency step and the objects use: each view's weights are read once for both
     total = EvidenceSum(len(g.means), n_classes) if needed else None
@@ -212,27 +216,43 @@ def evaluate_segmentation(
     """Metrics of the segmentation and of naive 2D fusion on the same ground-truth points.
 
     Returns:
-        ``{"dcseg_projection": m, "dcseg_nearest": m, "naive_fusion": m, "summary": {...}}``
-        where each ``m`` is :func:`~dcseg.evaluate.stage.evaluate_scenes` output. Projection
-        is the paper's protocol (label images, depth test); nearest transfers the labels of
-        Gaussians above ``cfg.evaluate.min_opacity`` within ``cfg.evaluate.max_distance``;
-        naive fusion votes the class-aware 2D maps directly, with no 3D reasoning.
+        ``{"dcseg_projection": m, "dcseg_nearest": m, "naive_fusion": m, "instances": i,
+        "summary": {...}}`` where each ``m`` is :func:`~dcseg.evaluate.stage.evaluate_scenes`
+        output. Projection is the paper's protocol (label images, depth test); nearest
+        transfers the labels of Gaussians above ``cfg.evaluate.min_opacity`` within
+        ``cfg.evaluate.max_distance``; naive fusion votes the class-aware 2D maps directly,
+        with no 3D reasoning. ``instances`` (:func:`~dcseg.evaluate.instances.instance_metrics`
+        of the objects transferred like the nearest protocol) is there when the ground truth
+        has instances and the labels carry them. A class-agnostic run (empty vocabulary) has
+        the instance metrics only.
     """
+    results: dict[str, Any] = {}
+    if len(vocabulary):
+        results = _semantic_metrics(trained, labels, semantic, gt, vocabulary, cfg)
+    summary = {name: {"miou": m["miou"], "macc": m["macc"]} for name, m in results.items()}
+    if gt.instances is not None and labels.instance_ids is not None:
+        results["instances"] = _instance_metrics(trained, labels.instance_ids, gt, cfg)
+        keys = ("f1", "precision", "recall", "mcov", "count_ratio")
+        summary["instances"] = {k: results["instances"][k] for k in keys}
+    return {**results, "summary": summary}
+
+
+def _semantic_metrics(
+    trained: TrainedScene,
+    labels: Labels,
+    semantic: Mapping[str, SemanticMap],
+    gt: GroundTruth,
+    vocabulary: Vocabulary,
+    cfg: PipelineConfig,
+) -> dict[str, Any]:
     views = trained.views
     n = len(vocabulary)
     tol = cfg.evaluate.depth_tol
     projection = vote_views(gt, views, [labels.label_maps[v.name] for v in views], n, tol)
     seen = [v for v in views if v.name in semantic]
     naive = vote_views(gt, seen, [semantic[v.name].classes for v in seen], n, tol)
-    g = trained.gaussians
-    nearest = transfer_opaque(
-        g.means.detach().cpu().numpy(),
-        g.opacities().detach().cpu().numpy(),
-        labels.semantic_ids,
-        gt.points,
-        cfg.evaluate,
-    )
-    results = {
+    nearest = _nearest(trained, labels.semantic_ids, gt, cfg)
+    return {
         name: evaluate_scenes([gt.labels], [pred], vocabulary.names, cfg.evaluate)
         for name, pred in (
             ("dcseg_projection", projection),
@@ -240,5 +260,22 @@ def evaluate_segmentation(
             ("naive_fusion", naive),
         )
     }
-    summary = {name: {"miou": m["miou"], "macc": m["macc"]} for name, m in results.items()}
-    return {**results, "summary": summary}
+
+
+def _instance_metrics(
+    trained: TrainedScene, instance_ids: NDArray[np.int64], gt: GroundTruth, cfg: PipelineConfig
+) -> dict[str, Any]:
+    assert gt.instances is not None
+    written = int(np.unique(instance_ids[instance_ids >= 0]).size)
+    return instance_metrics(gt.instances, _nearest(trained, instance_ids, gt, cfg), written)
+
+
+def _nearest(
+    trained: TrainedScene, values: NDArray[np.int64], gt: GroundTruth, cfg: PipelineConfig
+) -> NDArray[np.int64]:
+    """Each ground-truth point takes the value of its nearest opaque Gaussian (3D protocol)."""
+    g = trained.gaussians
+    means = g.means.detach().cpu().numpy()
+    return transfer_opaque(
+        means, g.opacities().detach().cpu().numpy(), values, gt.points, cfg.evaluate
+    )

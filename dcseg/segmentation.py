@@ -24,10 +24,13 @@ class Labels:
     Attributes:
         semantic_ids: ``[N]`` class per Gaussian, -1 = none.
         label_maps: per view name, ``[H, W]`` class per pixel (-1 = none).
+        instance_ids: ``[N]`` object instance per Gaussian (0-based, -1 = none); None when
+            not known (instance metrics are then left out).
     """
 
     semantic_ids: NDArray[np.int64]
     label_maps: dict[str, NDArray[np.int32]]
+    instance_ids: NDArray[np.int64] | None = None
 
 
 @dataclass(frozen=True)
@@ -74,4 +77,4 @@ class Segmentation:
         return table[self.cluster_maps[name] + 1]
 
     def labels(self) -> Labels:
-        return Labels(self.semantic_ids, self.label_maps)
+        return Labels(self.semantic_ids, self.label_maps, self.instances.ids)

@@ -62,5 +62,8 @@ def _summary(record: dict[str, Any]) -> dict[str, Any]:
         "instances": record["counts"]["clusters"],
         "labelled_instances": record["counts"]["labelled_clusters"],
         "seconds": record["seconds"],
-        "mIoU": {k: round(v["miou"], 4) for k, v in record["metrics_summary"].items()},
+        "mIoU": {
+            k: round(v["miou"], 4) for k, v in record["metrics_summary"].items() if "miou" in v
+        },
+        "instance_metrics": record["metrics_summary"].get("instances"),
     }

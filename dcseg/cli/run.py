@@ -19,8 +19,13 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("capture", type=Path, help="capture folder or archive")
     parser.add_argument("--agnostic-masks", type=Path, required=True, help="class-agnostic masks")
-    parser.add_argument("--semantic-masks", type=Path, required=True, help="class-aware maps")
-    parser.add_argument("--vocabulary", type=Path, required=True, help="class names")
+    parser.add_argument(
+        "--semantic-masks",
+        type=Path,
+        help="class-aware maps; without them and --vocabulary the run is class-agnostic "
+        "(objects without classes, instance metrics only)",
+    )
+    parser.add_argument("--vocabulary", type=Path, help="class names of --semantic-masks")
     parser.add_argument("--gt", type=Path, help="ground-truth PLY: also write metrics.json")
     parser.add_argument("--scene", type=Path, help="use this 3DGS scene.ply, skip reconstruction")
     parser.add_argument("--out", type=Path, required=True, help="output folder")

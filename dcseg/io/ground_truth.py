@@ -31,6 +31,7 @@ def read_ground_truth(path: Path, n_classes: int) -> GroundTruth:
     Args:
         path: the PLY file.
         n_classes: the vocabulary size; labels outside ``[0, n_classes)`` are ignored (-1).
+            0 = no vocabulary (a class-agnostic run: only the instances are scored).
 
     Returns:
         Points ``[N, 3]`` float64, labels ``[N]`` int64 and, when present, instances ``[N]``.
@@ -38,10 +39,10 @@ def read_ground_truth(path: Path, n_classes: int) -> GroundTruth:
     Raises:
         InputError: the file is missing, not a PLY or corrupt, has no vertices, lacks
             ``x``/``y``/``z``/``label``, has non-integer labels or non-finite coordinates.
-        ValueError: ``n_classes < 1``.
+        ValueError: ``n_classes < 0``.
     """
-    if n_classes < 1:
-        raise ValueError(f"n_classes must be >= 1, got {n_classes}")
+    if n_classes < 0:
+        raise ValueError(f"n_classes must be >= 0, got {n_classes}")
     shown = path.name
     vertex = _vertex_data(path, shown)
     points = _points(vertex, shown)

@@ -234,7 +234,8 @@ def load_run(run: Path, memory_mb: int = 0) -> SavedRun:
 
 
 def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = None) -> Labels:
-    """Read a run's exported labels back: ``semantic_id`` per Gaussian and ``labels/`` maps.
+    """Read a run's exported labels back: ``semantic_id`` and ``instance_id`` per Gaussian and
+    ``labels/`` maps.
 
     ``size``: the views' ``(width, height)``; maps written at the capture's resolution are
     brought back to it with nearest neighbour (exact for the integer factors of a plan).
@@ -243,9 +244,10 @@ def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = 
     try:
         vertex = PlyData.read(str(path))["vertex"]
         semantic_ids = np.asarray(vertex["semantic_id"], dtype=np.int64)
+        one_based = np.asarray(vertex["instance_id"], dtype=np.int64)
     except (OSError, ValueError, KeyError) as error:
         raise InputError.single(str(path), f"cannot read semantic_id: {error}") from None
     maps = {n: read_image(run / "labels" / f"{n}.png").astype(np.int32) - 1 for n in names}
     if size is not None:
         maps = {n: resize_nearest(m, size) for n, m in maps.items()}
-    return Labels(semantic_ids, maps)
+    return Labels(semantic_ids, maps, np.where(one_based > 0, one_based - 1, -1))

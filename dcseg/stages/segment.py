@@ -1,5 +1,8 @@
 """The segment stage (method steps 3-6) on a trained run: clusters, classes, objects, exports.
 
+Without class-aware masks (none given and none in the run) it is class-agnostic: clusters
+become objects without classes, and evaluation reports the instance metrics only.
+
 Reads the train stage's ``state/`` (handed over in memory when both ran in one process) and
 the class-aware masks, and writes the run folder users download (:mod:`dcseg.io.run_output`):
 labelled Gaussians, instances, per-view maps, preview, metrics with ground truth, ``run.json``
@@ -55,12 +58,15 @@ def segment(run: StageRun) -> StageResult:
         size = _output_size(saved)
         write_outputs(run.out, trained, segmentation, vocabulary, saved.previews, size=size)
         link_tree(run.folder("train") / "state", run.out / "state", skip=FROM_TRAIN_SKIPPED)
-        save_semantic(run.out / "state", saved.semantic, vocabulary)
+        if len(vocabulary):  # a class-agnostic run's state holds no class masks
+            save_semantic(run.out / "state", saved.semantic, vocabulary)
         save_clusters(run.out / "state", segmentation)
     record = segmented_record(saved, cfg, segmentation, run.clock, metrics)
     write_json(run.out / RUN_RECORD, record)
     counts = record["counts"]
     message = f"segment: {counts['clusters']} instances, {counts['labelled_clusters']} labelled"
+    if not len(vocabulary):
+        message = f"segment: {counts['instances']} objects, class-agnostic (no class-aware masks)"
     return StageResult("done", message)
 
 
@@ -82,16 +88,13 @@ def _trained(run: StageRun) -> SavedRun | None:
 
 def _with_semantic(run: StageRun, saved: SavedRun) -> SavedRun:
     """The run with the job's class-aware masks and vocabulary, or its own when the job gives
-    none (re-clustering); InputError when neither has any."""
+    none (re-clustering; a run without any is segmented class-agnostically)."""
     from dcseg.io.folders import FrameSelection
     from dcseg.io.semantic import read_semantic_maps, read_vocabulary
 
     masks, vocabulary_file = run.inputs.semantic_masks, run.inputs.vocabulary
     if masks is None and vocabulary_file is None:
-        if not saved.semantic:
-            reason = "the run holds no class-aware masks; give new ones and a vocabulary"
-            raise InputError.single(str(run.folder("train")), reason)
-        return saved
+        return saved  # its own masks, or none: objects without classes (class-agnostic)
     if masks is None or vocabulary_file is None:
         raise InputError.single("semantic masks", "new class-aware masks need a vocabulary")
     vocabulary = read_vocabulary(vocabulary_file)

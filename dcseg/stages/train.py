@@ -3,7 +3,7 @@
 Writes ``state/`` (Gaussians, features, per-view caches, previews: what re-clustering and
 re-classifying reuse) and ``run.json`` (the inputs, the frame budget's choice, the
 reconstruction's summary, the size rules and the resolved config). Skipped, saying why, when
-the job has no masks (a capture-only upload is reconstructed, nothing more).
+the job has no class-agnostic masks (a capture-only upload is reconstructed, nothing more).
 """
 
 from __future__ import annotations
@@ -40,11 +40,10 @@ def train(run: StageRun) -> StageResult:
     from dcseg.reconstruct.job import device_of
     from dcseg.types import Vocabulary
 
-    missing = run.inputs.missing()
-    if missing:
-        return StageResult("skipped", f"train: the job has no {describe_missing(missing)}")
+    if run.inputs.agnostic_masks is None:
+        missing = describe_missing(["agnostic_masks"])
+        return StageResult("skipped", f"train: the job has no {missing}")
     capture, plan, gaussians = _scene(run)
-    assert run.inputs.agnostic_masks is not None
     with run.clock.phase("read"):
         agnostic = read_agnostic_masks(
             run.inputs.agnostic_masks,

@@ -218,8 +218,8 @@ def test_train_then_segment_separately(
     record = json.loads((trained / "run.json").read_text())
     assert (trained / "state" / "affinity.npz").is_file()
     assert not (trained / "state" / "semantic").exists() and "counts" not in record
-    with pytest.raises(InputError, match="no class-aware masks"):
-        resegment_job(trained, tmp_path / "none")
+    unclassed = resegment_job(trained, tmp_path / "none")  # no class masks: class-agnostic
+    assert unclassed["counts"]["labelled_clusters"] == 0 and unclassed["counts"]["instances"]
     forbid_training(monkeypatch)
     out = tmp_path / "segmented"
     given = RunInputs.from_bundle(scene)
@@ -474,3 +474,27 @@ def test_older_run_with_retired_fields_still_reclusters(
     with pytest.raises(InputError, match=r"run\.json.*from_the_future"):
         resegment(old, tmp_path / "refused", scale=0.5)
     assert not (tmp_path / "refused").exists()
+
+
+def test_without_class_masks_the_run_is_class_agnostic(scene: Path, tmp_path: Path) -> None:
+    """Agnostic masks only: objects without classes, instance metrics only; re-clusters."""
+    inputs = replace(inputs_of(scene), semantic_masks=None, vocabulary=None)
+    out = tmp_path / "agnostic"
+    record = run_job(inputs, job(), out)
+    instances = json.loads((out / "instances.json").read_text())["instances"]
+    assert instances and all(i["label"] is None and i["label_id"] == -1 for i in instances)
+    assert record["counts"]["labelled_clusters"] == 0 and record["counts"]["instances"] > 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert set(metrics["summary"]) == {"instances"} and metrics["instances"]["n_gt"] > 0
+    assert 0.0 <= metrics["instances"]["f1"] <= 1.0
+    assert all(read_image(path).max() == 0 for path in (out / "labels").iterdir())
+    again = resegment(out, tmp_path / "again", scale=0.5)
+    assert again["counts"]["labelled_clusters"] == 0
+    with pytest.raises(InputError, match="go together"):
+        run_job(replace(inputs, vocabulary=scene / "vocabulary.txt"), job(), tmp_path / "bad")
+
+
+def test_a_classed_run_reports_instance_metrics_too(run_dir: Path) -> None:
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert {"dcseg_projection", "dcseg_nearest", "naive_fusion", "instances"} <= set(metrics)
+    assert metrics["summary"]["instances"]["f1"] == metrics["instances"]["f1"]

@@ -44,6 +44,23 @@ def test_validate_and_reconstruct_on_a_tiny_capture(store, settings, scene):
     assert json.loads((output / "segment" / "instances.json").read_text())["instances"]
 
 
+def test_an_upload_without_class_masks_is_segmented_class_agnostically(store, settings, scene):
+    _use_scene(settings, scene)
+    data = settings.storage_dir / "uploads" / "u1" / "data"
+    shutil.rmtree(data / "masks" / "semantic")
+    (data / "vocabulary.txt").unlink()
+    options = {"reconstruct": {"iterations": 2, "holdout": 0}, "affinity": {"iterations": 5}}
+    job_id = add_job(store, options=options)
+    settings = settings.model_copy(update={"device": "cpu"})
+    assert execute_job(job_id, store, settings, stages=default_stages()) == "succeeded"
+    output = JobPaths(settings.storage_dir, job_id).output
+    instances = json.loads((output / "segment" / "instances.json").read_text())["instances"]
+    assert instances and all(i["label"] is None for i in instances)
+    assert set(json.loads((output / "segment" / "metrics.json").read_text())["summary"]) == {
+        "instances"
+    }
+
+
 def test_validate_stage_reports_damaged_inputs(store, settings, scene):
     _use_scene(settings, scene)
     data = settings.storage_dir / "uploads" / "u1" / "data"

@@ -143,9 +143,14 @@ def test_error_empty_vertex_element(tmp_path: Path) -> None:
     assert read_error(path) == "gt.ply: vertex element is empty: no ground-truth points"
 
 
-def test_n_classes_must_be_positive(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="n_classes must be >= 1"):
-        read_ground_truth(tmp_path / "gt.ply", 0)
+def test_n_classes_must_not_be_negative(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="n_classes must be >= 0"):
+        read_ground_truth(tmp_path / "gt.ply", -1)
+
+
+def test_without_a_vocabulary_every_label_is_ignored_and_instances_kept(tmp_path: Path) -> None:
+    gt = read_ground_truth(write_ply(tmp_path / "gt.ply", vertices(), text=False), 0)
+    assert (gt.labels == -1).all() and gt.instances is not None and (gt.instances >= 0).any()
 
 
 def test_write_rejects_mismatched_shapes(tmp_path: Path) -> None:

@@ -40,7 +40,7 @@ def register(subparsers: Any) -> None:
         type=int,
         choices=range(4),
         metavar="D",
-        help="pad (or cut) SH to degree D; 3 gives the 45 f_rest_* strict loaders need",
+        help="pad (or cut) SH to degree D (default: 3 for ply, the INRIA layout; else the run's)",
     )
     parser.add_argument("--capture", type=Path, help="capture to mesh when RUN holds no depth")
     parser.add_argument("--voxel-size", type=float, help="TSDF voxel in metres (default: auto)")

@@ -1,18 +1,28 @@
 """Gaussian formats (PLY, SPZ, .splat): one file per selected object, and for a whole-run
 export one scene file whose Gaussians are grouped by object (``instances.json`` gives each
-object's ``[offset, count]``). PLY exports also get ``scene_by_instance.ply`` and
-``scene_by_class.ply``: palette colours in the DC term, so any splat viewer shows the
-segmentation without custom code."""
+object's ``[offset, count]``). PLY files are the INRIA layout, floats only, SH degree 3 unless
+asked otherwise (:mod:`dcseg.export.ply_file`); a whole-run PLY export also gets
+``scene.labels.npy`` (the labels of ``scene.ply``'s Gaussians), ``scene_labelled.ply`` (the
+run's integer columns kept) and ``scene_by_instance.ply`` / ``scene_by_class.ply``: palette
+colours in the DC term, so any splat viewer shows the segmentation without custom code."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from dcseg.export.appearance import styled
 from dcseg.export.options import ExportOptions
 from dcseg.export.plan import ExportPlan, Written
+from dcseg.export.ply_file import (
+    INRIA_SH_DEGREE,
+    LABELLED_SCENE,
+    labels_name,
+    write_inria_ply,
+    write_labels,
+)
 from dcseg.export.splat_file import write_splat
 from dcseg.export.spz_file import write_spz
 from dcseg.io.splat_table import SplatTable, write_splat_table
@@ -21,7 +31,7 @@ Encoder = Callable[[Path, SplatTable, ExportOptions], None]
 
 
 def _write_ply(path: Path, table: SplatTable, options: ExportOptions) -> None:
-    write_splat_table(path, table)
+    write_inria_ply(path, table)
 
 
 ENCODERS: dict[str, tuple[str, Encoder]] = {
@@ -37,21 +47,42 @@ PALETTE_SCENES = {"instance": "scene_by_instance.ply", "class": "scene_by_class.
 def write_gaussians(plan: ExportPlan, folder: Path, fmt: str) -> Written:
     """Write ``plan``'s Gaussians in ``fmt`` (a key of :data:`ENCODERS`) into ``folder``."""
     ext, encode = ENCODERS[fmt]
+    options = resolved(fmt, plan.options)
     written = Written()
     for k in plan.ids:
         name = f"instance_{k}.{ext}"
-        encode(folder / name, styled(plan.run, plan.rows_of(k), plan.options), plan.options)
+        encode(folder / name, styled(plan.run, plan.rows_of(k), options), options)
         written.files.append(name)
         written.per_instance[k] = name
     if not plan.whole:
         return written
     rows, written.ranges = plan.scene_rows()
     written.scene = f"scene.{ext}"
-    encode(folder / written.scene, styled(plan.run, rows, plan.options), plan.options)
+    scene = styled(plan.run, rows, options)
+    encode(folder / written.scene, scene, options)
     written.files.append(written.scene)
     if fmt == "ply":
-        for mode, name in PALETTE_SCENES.items():
-            options = replace(plan.options, colour=mode)  # type: ignore[arg-type]
-            write_splat_table(folder / name, styled(plan.run, rows, options))
-            written.files.append(name)
+        _ply_scene_extras(plan, folder, written, scene, rows)
     return written
+
+
+def resolved(fmt: str, options: ExportOptions) -> ExportOptions:
+    """``options`` with PLY's default SH degree (:data:`INRIA_SH_DEGREE`) filled in."""
+    if fmt != "ply" or options.sh_degree is not None:
+        return options
+    return replace(options, sh_degree=INRIA_SH_DEGREE)
+
+
+def _ply_scene_extras(
+    plan: ExportPlan, folder: Path, written: Written, scene: SplatTable, rows: Any
+) -> None:
+    """The labels of ``scene.ply``, the labelled scene, and the palette scenes."""
+    labels = labels_name(f"scene.{ENCODERS['ply'][0]}")
+    written.labels = write_labels(folder / labels, scene)
+    write_splat_table(folder / LABELLED_SCENE, styled(plan.run, rows, plan.options))
+    written.files += [labels, LABELLED_SCENE]
+    options = resolved("ply", plan.options)
+    for mode, name in PALETTE_SCENES.items():
+        painted = replace(options, colour=mode)  # type: ignore[arg-type]
+        write_inria_ply(folder / name, styled(plan.run, rows, painted))
+        written.files.append(name)

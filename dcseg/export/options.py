@@ -23,7 +23,8 @@ class ExportOptions:
             reconstructed appearance.
         sh_degree: write exactly this SH degree (0-3): higher degrees are padded with zero
             coefficients (3 = the 45 ``f_rest_*`` the INRIA and SIBR loaders require), lower ones
-            are truncated. None keeps the run's degree. Palette colours always have SH 0 only.
+            are truncated. None = 3 for PLY files (the INRIA layout; ``scene_labelled.ply``
+            keeps the run's degree), the run's degree for the other formats.
         capture: the capture to read depth from when the run holds none (meshes only).
         voxel_size: TSDF voxel edge in metres; None = the longest side of the depth's bounding
             box / :attr:`voxels_per_side`.

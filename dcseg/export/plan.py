@@ -63,6 +63,7 @@ class Written:
         ranges: ``[offset, count]`` of each object's Gaussians in ``scene`` (key ``"none"``:
             Gaussians of no selected object), for Gaussian formats.
         nodes: each object's node name in ``scene`` (GLB; objects without a surface have none).
+        labels: the per-Gaussian label sidecar of ``scene`` (PLY: file, columns), if any.
     """
 
     files: list[str] = field(default_factory=list)
@@ -70,3 +71,4 @@ class Written:
     scene: str | None = None
     ranges: dict[str, list[int]] = field(default_factory=dict)
     nodes: dict[int, str] = field(default_factory=dict)
+    labels: dict[str, Any] = field(default_factory=dict)

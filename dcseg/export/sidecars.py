@@ -50,6 +50,7 @@ def instance_table(plan: ExportPlan, fmt: str, written: Written) -> dict[str, An
         "format": fmt,
         "scene": written.scene,
         "unassigned_gaussians": written.ranges.get("none"),
+        **({"labels": written.labels} if written.labels else {}),
         "frame": FRAME_FILE,
         "classes": [{"id": i, "name": c, "rgb": class_rgb[i]} for i, c in enumerate(run.classes)],
         "instances": rows,

@@ -85,15 +85,15 @@ def test_sidecars_name_no_storage_path(env, tmp_path):
 def test_options_reach_the_exporter_and_are_cached_apart(env):
     client, job = env
     plain = _get(client, f"/v1/jobs/{job}/instances/2/exports/ply")
-    padded = _get(client, f"/v1/jobs/{job}/instances/2/exports/ply?sh_degree=3")
-    assert padded["options"] == {"sh_degree": 3} and plain["options"] == {}
-    file = next(f for f in padded["files"] if f["name"] == "instance_2.ply")
-    assert file["url"].endswith("/exports/ply/instance_2.ply?sh_degree=3")
+    dc_only = _get(client, f"/v1/jobs/{job}/instances/2/exports/ply?sh_degree=0")
+    assert dc_only["options"] == {"sh_degree": 0} and plain["options"] == {}
+    file = next(f for f in dc_only["files"] if f["name"] == "instance_2.ply")
+    assert file["url"].endswith("/exports/ply/instance_2.ply?sh_degree=0")
     names = _vertices(client.get(file["url"], headers=AUTH_A).content).data.dtype.names
-    assert sum(n.startswith("f_rest_") for n in names) == 45
+    assert sum(n.startswith("f_rest_") for n in names) == 0
     plain_file = next(f for f in plain["files"] if f["name"] == "instance_2.ply")
     plain_names = _vertices(client.get(plain_file["url"], headers=AUTH_A).content).data.dtype.names
-    assert sum(n.startswith("f_rest_") for n in plain_names) == 9  # the run's SH degree 1
+    assert sum(n.startswith("f_rest_") for n in plain_names) == 45  # PLY's default: the INRIA SH 3
     coloured = _get(client, f"/v1/jobs/{job}/instances/2/exports/spz?colour=class")
     assert coloured["links"]["self"].endswith("/instances/2/exports/spz?colour=class")
     bad = client.get(f"/v1/jobs/{job}/exports/ply?sh_degree=4", headers=AUTH_A)

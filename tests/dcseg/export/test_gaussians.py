@@ -35,10 +35,10 @@ def test_per_instance_plys_partition_the_labelled_gaussians(run: Path, ply_out: 
     parts = []
     for record in table["instances"]:
         part = read_splat_table(ply_out / record["file"])
-        assert np.all(part.ints["instance_id"] == record["id"])
-        assert set(part.ints) == {"instance_id", "semantic_id", "cluster_id"}  # columns kept
+        assert part.ints == {}  # the INRIA layout: floats only
         assert len(part) == record["n_gaussians"] == int((ids == record["id"]).sum())
-        assert np.array_equal(part.sh, source.sh[ids == record["id"]])
+        assert np.array_equal(part.sh[:, :4], source.sh[ids == record["id"]])
+        assert part.sh.shape[1] == 16 and np.all(part.sh[:, 4:] == 0)  # SH 3 by default
         parts.append(part.means)
     parts.append(source.means[ids < 0])
     assert np.array_equal(_sorted_rows(np.concatenate(parts)), _sorted_rows(source.means))
@@ -47,29 +47,39 @@ def test_per_instance_plys_partition_the_labelled_gaussians(run: Path, ply_out: 
 def test_scene_file_is_grouped_by_object_as_the_sidecar_says(run: Path, ply_out: Path) -> None:
     table = json.loads((ply_out / "instances.ply.json").read_text())
     scene = read_splat_table(ply_out / table["scene"])
-    assert len(scene) == len(read_splat_table(run / "scene_labelled.ply"))
+    labelled = read_splat_table(ply_out / "scene_labelled.ply")  # the same order, ints kept
+    assert len(scene) == len(labelled) == len(read_splat_table(run / "scene_labelled.ply"))
+    assert np.array_equal(scene.means, labelled.means)
+    labels = np.load(ply_out / table["labels"]["file"])
+    assert table["labels"]["columns"] == ["instance_id", "semantic_id", "cluster_id"]
+    assert labels.dtype == np.int32 and labels.shape == (len(scene), 3)
+    for i, name in enumerate(table["labels"]["columns"]):
+        assert np.array_equal(labels[:, i], labelled.ints[name])
     for record in table["instances"]:
         offset, count = record["gaussians"]
-        assert np.all(scene.ints["instance_id"][offset : offset + count] == record["id"])
+        assert np.all(labels[offset : offset + count, 0] == record["id"])
     offset, count = table["unassigned_gaussians"]
     assert offset + count == len(scene)
-    assert np.all(scene.ints["instance_id"][offset:] == -1)
+    assert np.all(labels[offset:, 0] == -1)
 
 
 @pytest.mark.parametrize("mode", ["instance", "class"])
 def test_palette_scene_has_the_palette_colour_in_its_dc_term(ply_out: Path, mode: str) -> None:
     table = json.loads((ply_out / "instances.ply.json").read_text())
     data = PlyData.read(str(ply_out / f"scene_by_{mode}.ply"))["vertex"].data
-    assert not [n for n in data.dtype.names if n.startswith("f_rest_")]  # SH 0: no view effects
+    rest = [n for n in data.dtype.names if n.startswith("f_rest_")]
+    assert len(rest) == 45 and all(np.all(data[n] == 0) for n in rest)  # no view effects
     rgb = np.stack([0.5 + SH_C0 * data[f"f_dc_{c}"] for c in range(3)], axis=1) * 255
     key = "instance_id" if mode == "instance" else "semantic_id"
+    column = table["labels"]["columns"].index(key)
+    labels = np.load(ply_out / table["labels"]["file"])[:, column]
     if mode == "instance":
         expected = {r["id"]: r["rgb"] for r in table["instances"]}
     else:
         expected = {c["id"]: c["rgb"] for c in table["classes"]}
     for k, colour in expected.items():
-        assert np.allclose(rgb[data[key] == k], colour, atol=0.01)
-    assert np.allclose(rgb[data[key] == -1], 128, atol=0.01)
+        assert np.allclose(rgb[labels == k], colour, atol=0.01)
+    assert np.allclose(rgb[labels == -1], 128, atol=0.01)
 
 
 def test_palette_colours_are_distinct_and_none_is_grey() -> None:

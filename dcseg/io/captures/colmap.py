@@ -4,7 +4,7 @@
 
     sparse/0/cameras.bin|txt    intrinsics (COLMAP camera models)
     sparse/0/images.bin|txt     per image: world-to-camera quaternion (qw qx qy qz) + translation
-    sparse/0/points3D.bin|txt   not read (dcseg initialises from depth)
+    sparse/0/points3D.bin|txt   optional: checks that the depth maps share the model's scale
     images/<name>               colour, ``<name>`` as in the images file (may hold folders)
     depth/<name stem>.png       uint16 millimetres (0 = none), or
     depth/<name stem>.npy       float32 metres (0 = none)
@@ -32,7 +32,8 @@ refused the same way.
 
 Depth is required for now (the pipeline initialises Gaussians and mask scales from it): a model
 without ``depth/`` is reported as such. Depth must be metric and in the model's units, so a
-model from images alone must first be scaled to metres (e.g. ``colmap model_aligner``). Depth
+model from images alone must first be scaled to metres (e.g. ``colmap model_aligner``); with
+``points3D``, :mod:`.colmap_scale` checks it. Depth
 at another resolution than its image is resampled onto it (nearest; same field of view).
 Frames are named by the image name without its extension, sorted naturally.
 """
@@ -51,6 +52,7 @@ from scipy.spatial.transform import Rotation
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
 from dcseg.io.captures.binary import BinaryReader, open_binary
+from dcseg.io.captures.colmap_scale import Observed, scale_problem
 from dcseg.io.captures.common import (
     Camera,
     FrameSpec,
@@ -107,6 +109,7 @@ class _Image:
     camera_id: int
     name: str
     source: str
+    points: tuple[int, int] = (0, 0)  # its 2D points: (byte offset, count) or (line index, -1)
 
 
 def model_folder(root: Path) -> Path | None:
@@ -198,7 +201,8 @@ def _images_text(path: Path, shown: str) -> list[_Image]:
         index += 1
         if not _is_data(line):
             continue
-        index += 1  # the 2D points line
+        points = (index, -1)  # the 2D points line
+        index += 1
         where, values = f"{shown}:line {number}", line.split()
         if len(values) < 10:
             raise InputError.single(
@@ -208,13 +212,15 @@ def _images_text(path: Path, shown: str) -> list[_Image]:
         pose = _numbers(values[1:8], where, "QW QX QY QZ TX TY TZ")
         camera_id = _integer(values[8], where, "CAMERA_ID")
         name = " ".join(values[9:])
-        images.append(_image(pose, camera_id, name, f"{where} (image {values[0]})"))
+        images.append(_image(pose, camera_id, name, f"{where} (image {values[0]})", points))
     return images
 
 
-def _image(pose: list[float], camera_id: int, name: str, source: str) -> _Image:
+def _image(
+    pose: list[float], camera_id: int, name: str, source: str, points: tuple[int, int]
+) -> _Image:
     qw, qx, qy, qz, tx, ty, tz = pose
-    return _Image((qw, qx, qy, qz), (tx, ty, tz), camera_id, name, source)
+    return _Image((qw, qx, qy, qz), (tx, ty, tz), camera_id, name, source, points)
 
 
 def _unknown_model(model: str) -> str:
@@ -255,8 +261,10 @@ def _images_binary(path: Path, shown: str) -> list[_Image]:
             image_id, pose, camera_id = values[0], values[1:8], values[8]
             name = data.name(f"{field} (id {image_id}): name")
             (points,) = data.take("Q", f"{field} (id {image_id}): the number of 2D points")
+            at = handle.tell()
             data.skip(24 * points, f"{field} (id {image_id}): {points} 2D points")
-            images.append(_image(list(pose), camera_id, name, f"{shown}:image {image_id}"))
+            source = f"{shown}:image {image_id}"
+            images.append(_image(list(pose), camera_id, name, source, (at, points)))
     return images
 
 
@@ -336,7 +344,20 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
             listing.problems.append(Problem(cameras[camera_id].source, found))
     for image in sorted(images, key=lambda im: numeric_sort_key(im.name)):
         _add_image(root, image, intrinsics, listing)
+    if listing.specs and not listing.problems:
+        _check_scale(root, folder, images, listing)
     return listing
+
+
+def _check_scale(root: Path, folder: Path, images: list[_Image], listing: Listing) -> None:
+    """Refuse depth maps whose scale is not the model's (:mod:`.colmap_scale`)."""
+    by_name = {posixpath.splitext(image.name)[0]: image for image in images}
+    observed = [Observed(spec, by_name[spec.name].points) for spec in listing.specs]
+    images_path = _model_file(folder, "images")
+    assert images_path is not None
+    problem = scale_problem(root, images_path, _model_file(folder, "points3D"), observed)
+    if problem is not None:
+        listing.problems.append(problem)
 
 
 def _add_image(

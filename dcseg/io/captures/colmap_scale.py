@@ -65,7 +65,9 @@ def scale_problem(
         return None
     step = max(1, len(frames) // SAMPLES)
     chosen = list(frames[::step][:SAMPLES])
-    observations = [_observations(images, frame.points) for frame in chosen]
+    text = images.suffix == ".txt"
+    lines = images.read_text(encoding="utf-8", errors="replace").splitlines() if text else []
+    observations = [_observations(images, frame.points, lines) for frame in chosen]
     wanted = {int(i) for obs in observations for i in obs["id"] if i >= 0}
     xyz = _points(points3d, rel(points3d, root), wanted)
     ratios = np.concatenate(
@@ -88,10 +90,9 @@ def scale_problem(
     )
 
 
-def _observations(images: Path, points: tuple[int, int]) -> NDArray[np.void]:
+def _observations(images: Path, points: tuple[int, int], lines: list[str]) -> NDArray[np.void]:
     at, count = points
     if count < 0:  # text: the line of "X Y POINT3D_ID" triples
-        lines = images.read_text(encoding="utf-8", errors="replace").splitlines()
         line = lines[at] if at < len(lines) else ""
         try:
             values = np.array([float(v) for v in line.split()], dtype=np.float64)

@@ -7,7 +7,8 @@ A semantic-map folder holds one single-channel class map per frame, matched by f
 * ``<stem>.npy`` integer (negative = unlabelled).
 
 The folder may instead be a panoptic source (:mod:`dcseg.io.mask_formats.panoptic`): each
-segment's category is the class of its pixels.
+segment's category is the class of its pixels; or one COCO instance JSON, whose annotations
+paint their categories (:mod:`dcseg.io.mask_formats.coco`).
 
 Values index into a :class:`~dcseg.types.Vocabulary`, read from ``.txt`` (one class name per
 line) or ``.json`` (a list of strings). In memory maps are int32 with ``-1`` = unlabelled.
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +29,13 @@ from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection, entries_by_stem
 from dcseg.io.images import display_path, read_image, resize_nearest, write_image
 from dcseg.io.mask_formats import (
+    COCO_INSTANCES,
     COCO_PANOPTIC,
     PANOPTIC_PAIRS,
-    PER_FRAME,
+    MaskLayout,
     detect_masks,
 )
+from dcseg.io.mask_formats.coco import iter_coco_classes
 from dcseg.io.mask_formats.palette import is_palette_png, read_palette_indices
 from dcseg.io.mask_formats.panoptic import iter_panoptic_classes
 from dcseg.types import SemanticMap, Vocabulary
@@ -51,6 +54,17 @@ MAP_SUFFIXES = (".png", ".npy")
 UNLABELLED_PNG = {np.dtype(np.uint8): 255, np.dtype(np.uint16): 65535}
 MAX_REPORTED_VALUES = 5
 _PLURAL = {"line": "lines", "entry": "entries"}
+
+_LayoutReader = Callable[
+    [MaskLayout, Vocabulary, tuple[int, int] | None, FrameSelection | None],
+    Iterator[SemanticMap | Problem],
+]
+_LAYOUT_READERS: dict[str, _LayoutReader] = {
+    COCO_INSTANCES: iter_coco_classes,
+    COCO_PANOPTIC: iter_panoptic_classes,
+    PANOPTIC_PAIRS: iter_panoptic_classes,
+}
+"""Class-map readers of the layouts that are not one file per frame."""
 
 
 # --------------------------------------------------------------------------- vocabulary
@@ -190,14 +204,10 @@ def iter_semantic_maps(
     if not folder.is_dir() and not folder.is_file():
         raise InputError.single(str(folder), "semantic map folder not found (or not a folder)")
     layout = detect_masks(folder)
-    if layout.kind in (COCO_PANOPTIC, PANOPTIC_PAIRS):
-        yield from iter_panoptic_classes(layout, vocabulary, size, frames)
+    whole = _LAYOUT_READERS.get(layout.kind)
+    if whole is not None:
+        yield from whole(layout, vocabulary, size, frames)
         return
-    if layout.kind != PER_FRAME:
-        reason = (
-            f"{layout.kind} annotations are class-agnostic masks (--agnostic-masks), not class maps"
-        )
-        raise InputError.single(display_path(folder, folder.parent), reason)
     entries, problems = _map_entries(folder)
     if frames is not None:
         entries, extra = frames.pick(entries, folder, "class maps")

@@ -5,11 +5,13 @@ The file follows the COCO "object detection" format: ``images`` (``id``, ``file_
 ``category_id``, ``score``, ``iscrowd``). A frame is the stem of its image's ``file_name``.
 ``segmentation`` is a list of polygons ``[[x1, y1, x2, y2, ...], ...]`` (rasterised with
 pycocotools ``frPyObjects``, the reference COCO API) or an RLE, compressed or not. Each
-annotation is one class-agnostic mask; images without annotations have no masks.
+annotation is one class-agnostic mask; images without annotations have no masks. As class maps,
+each annotation paints its ``category_id`` (:mod:`dcseg.io.mask_formats.categories`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,13 +21,14 @@ import pycocotools.mask as mask_util
 
 from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection
-from dcseg.io.images import display_path
+from dcseg.io.images import display_path, resize_nearest
 from dcseg.io.mask_formats import MaskLayout
-from dcseg.io.mask_formats.rle import RLE, is_count, to_rle
+from dcseg.io.mask_formats.categories import CategoryMap
+from dcseg.io.mask_formats.rle import RLE, decode_rle, is_count, to_rle
 from dcseg.io.mask_formats.scores import MinScores
-from dcseg.types import AgnosticMasks
+from dcseg.types import AgnosticMasks, SemanticMap, Vocabulary
 
-__all__ = ["read_coco_masks"]
+__all__ = ["iter_coco_classes", "read_coco_masks"]
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,55 @@ def read_coco_masks(
     if problems:
         raise InputError(problems)
     return out
+
+
+def iter_coco_classes(
+    layout: MaskLayout,
+    vocabulary: Vocabulary,
+    size: tuple[int, int] | None,
+    frames: FrameSelection | None,
+) -> Iterator[SemanticMap | Problem]:
+    """Every (selected) frame's class map painted from its annotations' ``category_id``:
+    larger masks first, so a smaller object on a larger one keeps its class; pixels no
+    annotation covers are unlabelled (-1). A problem in place of a frame that has one."""
+    assert layout.index is not None
+    shown = display_path(layout.index, layout.root)
+    images, problems = _images(layout.data, shown)
+    problems += _attach(layout.data["annotations"], images, shown)
+    by_stem = {image.stem: image for image in images.values()}
+    if frames is not None:
+        kept, extra = frames.pick(dict.fromkeys(by_stem, layout.index), layout.path, "class maps")
+        by_stem = {stem: by_stem[stem] for stem in kept}
+        problems += extra
+    yield from problems
+    categories = CategoryMap.of(layout.data, vocabulary)
+    for stem, image in sorted(by_stem.items()):
+        painted: list[tuple[int, int, RLE]] = []
+        bad: list[Problem] = []
+        for i, annotation in image.annotations:
+            rle, reason = _mask_of(annotation, image)
+            cls, why = _class_of(annotation, categories)
+            if rle is None or why:
+                bad.append(Problem(shown, f"{_where(i, annotation)}: {reason or why}"))
+            else:
+                painted.append((int(mask_util.area(rle)), cls, rle))
+        if bad:
+            yield from bad
+            continue
+        classes = np.full((image.height, image.width), -1, dtype=np.int32)
+        for _, cls, rle in sorted(painted, key=lambda p: -p[0]):
+            classes[decode_rle(rle)] = cls
+        if size is not None:
+            classes = resize_nearest(classes, size)
+        yield SemanticMap(stem, classes, shown)
+
+
+def _class_of(annotation: dict[str, Any], categories: CategoryMap) -> tuple[int, str]:
+    """The vocabulary index of an annotation's ``category_id``, or -1 and why not."""
+    category = annotation.get("category_id")
+    if not isinstance(category, int) or not is_count(category):
+        return -1, f"category_id must be a non-negative integer, got {category!r}"
+    return categories.lookup(category)
 
 
 def _images(data: dict[str, Any], shown: str) -> tuple[dict[int, _Image], list[Problem]]:

@@ -25,6 +25,7 @@ from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection
 from dcseg.io.images import display_path, read_image, resize_nearest
 from dcseg.io.mask_formats import COCO_PANOPTIC, MaskLayout, load_json
+from dcseg.io.mask_formats.categories import CategoryMap
 from dcseg.io.mask_formats.palette import is_palette_png, read_palette_indices
 from dcseg.io.mask_formats.rle import encode
 from dcseg.io.mask_formats.scores import MinScores
@@ -91,11 +92,11 @@ def iter_panoptic_classes(
     frame that cannot be read."""
     listed, problems = _frames(layout, frames)
     yield from problems
-    by_name = _category_classes(layout, vocabulary)
+    categories = CategoryMap.of(layout.data, vocabulary)
     for stem, frame in sorted(listed.items()):
         try:
             ids, segments, _ = _read_frame(frame, layout.root, size, MinScores())
-            classes = _classes(ids, segments, by_name, vocabulary, frame, layout.root)
+            classes = _classes(ids, segments, categories, frame, layout.root)
         except InputError as err:
             yield from err.problems
             continue
@@ -259,55 +260,24 @@ def _panoptic_ids(path: Path, root: Path) -> NDArray[np.int64]:
 # --------------------------------------------------------------------------- classes
 
 
-def _category_classes(layout: MaskLayout, vocabulary: Vocabulary) -> dict[int, str] | None:
-    """COCO ``categories``: ``{id: name}``, or None when the JSON lists none."""
-    categories = layout.data.get("categories") if isinstance(layout.data, dict) else None
-    if not isinstance(categories, list):
-        return None
-    return {
-        c["id"]: str(c.get("name"))
-        for c in categories
-        if isinstance(c, dict) and isinstance(c.get("id"), int)
-    }
-
-
 def _classes(
     ids: NDArray[np.int64],
     segments: dict[int, int],
-    by_name: dict[int, str] | None,
-    vocabulary: Vocabulary,
+    categories: CategoryMap,
     frame: _Frame,
     root: Path,
 ) -> NDArray[np.int32]:
     """The class of every pixel, -1 on void; InputError for a category the vocabulary lacks."""
-    index = {name: i for i, name in enumerate(vocabulary.names)}
     values, inverse = np.unique(ids, return_inverse=True)
     lut = np.full(values.size, -1, dtype=np.int32)
     problems: list[Problem] = []
     for k, value in enumerate(values):
         if value == 0:
             continue
-        category = segments[int(value)]
-        if by_name is None:
-            cls = category if category < len(vocabulary) else -1
-        else:
-            cls = index.get(by_name.get(category, ""), -1)
-        if cls < 0:
-            reason = _no_class(int(value), category, by_name, len(vocabulary))
-            problems.append(Problem(display_path(frame.info, root), reason))
-        lut[k] = cls
+        lut[k], reason = categories.lookup(segments[int(value)])
+        if reason:
+            problems.append(Problem(display_path(frame.info, root), f"segment {value}: {reason}"))
     if problems:
         raise InputError(problems)
     classes: NDArray[np.int32] = lut[inverse.reshape(ids.shape)]
     return classes
-
-
-def _no_class(segment: int, category: int, by_name: dict[int, str] | None, n: int) -> str:
-    if by_name is None:
-        return (
-            f"segment {segment}: category_id {category} is beyond the vocabulary of {n} "
-            "classes (without 'categories', category_id is the vocabulary index)"
-        )
-    if category not in by_name:
-        return f"segment {segment}: category_id {category} is not in 'categories'"
-    return f"segment {segment}: category {by_name[category]!r} is not in the vocabulary"

@@ -141,7 +141,45 @@ def test_error_not_coco_and_malformed_json(tmp_path: Path) -> None:
         read_agnostic_masks(tmp_path / "c.txt")
 
 
-def test_coco_instances_are_not_class_maps(tmp_path: Path) -> None:
-    write_json(tmp_path / "m" / "coco.json", coco([]))
-    with pytest.raises(InputError, match="coco-instances annotations are class-agnostic masks"):
+def test_class_maps_paint_categories_smaller_on_top(tmp_path: Path) -> None:
+    """``categories`` names map to the vocabulary; a small object on a large one keeps its
+    class whatever the annotation order; pixels without annotation are unlabelled."""
+    table = np.zeros((8, 10), bool)
+    table[2:8, 0:10] = True
+    cup = np.zeros((8, 10), bool)
+    cup[3:5, 4:6] = True
+    annotations = [
+        {"id": 1, "image_id": 1, "category_id": 62, "segmentation": rle_of(cup)},
+        {"id": 2, "image_id": 1, "category_id": 67, "segmentation": rle_of(table)},
+        {"id": 3, "image_id": 2, "category_id": 62, "segmentation": [SQUARE]},
+    ]
+    data = coco(annotations)
+    data["categories"] = [{"id": 62, "name": "cup"}, {"id": 67, "name": "table"}]
+    write_json(tmp_path / "m" / "coco.json", data)
+    maps = read_semantic_maps(tmp_path / "m", Vocabulary(("wall", "table", "cup")))
+    expected = np.full((8, 10), -1)
+    expected[table] = 1
+    expected[cup] = 2
+    np.testing.assert_array_equal(maps["frame_0000"].classes, expected)
+    np.testing.assert_array_equal(maps["frame_0001"].classes == 2, reference([SQUARE], 8, 10))
+    assert maps["frame_0000"].source == "m/coco.json"
+    small = read_semantic_maps(tmp_path / "m", Vocabulary(("wall", "table", "cup")), size=(5, 4))
+    assert small["frame_0000"].classes.shape == (4, 5)
+
+
+def test_class_map_errors_name_the_annotation(tmp_path: Path) -> None:
+    annotations = [
+        {"id": 1, "image_id": 1, "category_id": 5, "segmentation": [SQUARE]},
+        {"id": 2, "image_id": 1, "segmentation": [SQUARE]},
+        {"id": 3, "image_id": 2, "category_id": 0, "segmentation": [SQUARE]},
+    ]
+    data = coco(annotations)
+    del data["categories"]  # category_id is the vocabulary index
+    write_json(tmp_path / "m" / "coco.json", data)
+    with pytest.raises(InputError) as info:
         read_semantic_maps(tmp_path / "m", Vocabulary(("chair",)))
+    assert [str(p) for p in info.value.problems] == [
+        "m/coco.json: annotations[0] (id 1): category_id 5 is beyond the vocabulary of 1 classes "
+        "(without 'categories', category_id is the vocabulary index)",
+        "m/coco.json: annotations[1] (id 2): category_id must be a non-negative integer, got None",
+    ]

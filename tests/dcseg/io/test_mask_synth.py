@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pycocotools.mask as mask_util
 import pytest
 
 from dcseg.cli import main
@@ -124,6 +125,31 @@ def test_agnostic_masks_as_one_coco_instance_json(
     args = ["validate", str(scene), "--agnostic-masks", str(tmp_path / "coco" / "instances.json")]
     assert main(args) == 0
     assert "  format: coco-instances (instances.json)\n" in capsys.readouterr().out
+
+
+def test_class_maps_as_coco_instances(scene: Path, tmp_path: Path) -> None:
+    """One annotation per class region (RLE), categories named: the class maps read back."""
+    maps = originals(scene)
+    vocabulary = read_vocabulary(scene / "vocabulary.txt")
+    images: list[dict[str, Any]] = []
+    annotations: list[dict[str, Any]] = []
+    for i, (name, m) in enumerate(sorted(maps.items())):
+        height, width = m.classes.shape
+        images.append({"id": i, "file_name": f"{name}.png", "height": height, "width": width})
+        for c in np.unique(m.classes[m.classes >= 0]):
+            rle = mask_util.encode(np.asfortranarray((m.classes == c).astype(np.uint8)))
+            segmentation = {"size": rle["size"], "counts": rle["counts"].decode()}
+            annotation = {"id": len(annotations), "image_id": i, "segmentation": segmentation}
+            annotations.append({**annotation, "category_id": 100 + int(c)})
+    categories = [{"id": 100 + i, "name": n} for i, n in enumerate(vocabulary.names)]
+    data = {"images": images, "annotations": annotations, "categories": categories}
+    write_json(tmp_path / "coco.json", data)
+    read = read_semantic_maps(tmp_path / "coco.json", vocabulary)
+    for name, m in maps.items():
+        np.testing.assert_array_equal(read[name].classes, m.classes)
+    report = validate_inputs(inputs(scene, tmp_path / "coco.json", tmp_path / "coco.json"))
+    assert report.ok, report.problems
+    assert report.summary["semantic_masks"]["format"] == "coco-instances (coco.json)"
 
 
 def test_agnostic_masks_as_npz_stacks(scene: Path, tmp_path: Path) -> None:

@@ -6,7 +6,8 @@ camera trajectory.
     image/|rgb/|color/*.jpg|png   colour, paired with depth by sorted order (as Open3D does)
     depth/*.png                   uint16 millimetres (Open3D's default depth_scale 1000), 0 = none
     <name>.log                    the trajectory (``trajectory.log``, ``odometry.log``, ...)
-    camera_intrinsic.json         optional: Open3D's PinholeCameraIntrinsic JSON
+    camera_intrinsic.json         optional: Open3D's PinholeCameraIntrinsic JSON (+ Stray's
+                                  optional ``depth_scale``: stored value / scale = metres)
 
 The ``.log`` format (http://redwood-data.org/indoor/fileformat.html): every five lines are one
 item, a metadata line of three integers and four rows of a 4x4 matrix that maps a point from the
@@ -19,7 +20,9 @@ item are not read.
 The trajectory is ``scene/trajectory.log`` or the ``.log`` file in the capture folder
 (``trajectory.log`` when there are several). Intrinsics come from ``camera_intrinsic.json``
 (``width``, ``height`` and ``intrinsic_matrix``, the 3x3 matrix stored column-major) or
-``CaptureOptions.intrinsics``.
+``CaptureOptions.intrinsics``. Depth may have a lower resolution than colour (same aspect
+ratio, as in Stray's dataset format, which this layout also reads once ``stray studio
+integrate`` wrote ``scene/trajectory.log``): it is resampled onto the colour grid (nearest).
 """
 
 from __future__ import annotations
@@ -43,10 +46,13 @@ from dcseg.io.captures.common import (
 )
 from dcseg.io.captures.jsonfields import JsonFields, load_json
 
-__all__ = ["COLOUR_FOLDERS", "list_frames", "matches", "trajectory_file"]
+__all__ = ["COLOUR_FOLDERS", "DEPTH_SCALE", "list_frames", "matches", "trajectory_file"]
 
 COLOUR_FOLDERS = ("image", "rgb", "color")
 """Colour folder names, in the order Open3D's reconstruction system looks for them."""
+
+DEPTH_SCALE = 1000.0
+"""Open3D's default depth scale: a stored value / 1000 = metres."""
 
 _INTRINSICS = "camera_intrinsic.json"
 _COLOUR_SUFFIXES = {".jpg", ".jpeg", ".png"}
@@ -88,13 +94,14 @@ def _check_single_log(root: Path, chosen: Path) -> None:
         )
 
 
-def _camera(root: Path, options: CaptureOptions) -> Camera:
+def _camera(root: Path, options: CaptureOptions) -> tuple[Camera, float]:
+    """The intrinsics and the depth scale (stored value / scale = metres)."""
     path = root / _INTRINSICS
     if not path.is_file():
         camera = options_camera(options)
         if camera is None:
             raise InputError.single(".", _NO_INTRINSICS)
-        return camera
+        return camera, DEPTH_SCALE
     warn_if_options_intrinsics(options, "Redwood/Open3D (with camera_intrinsic.json)")
     fields = JsonFields(_INTRINSICS)
     doc = fields.mapping(load_json(path, _INTRINSICS), "")
@@ -102,6 +109,9 @@ def _camera(root: Path, options: CaptureOptions) -> Camera:
         raise InputError(fields.problems)
     width, height = fields.integer(doc, "width", ""), fields.integer(doc, "height", "")
     matrix = fields.array(fields.get(doc, "intrinsic_matrix", ""), "intrinsic_matrix")
+    scale = fields.number(doc, "depth_scale", "", required=False)
+    if scale is not None and scale <= 0:
+        fields.add("depth_scale", f"must be > 0, got {scale:g}")
     fields.raise_if_any()
     assert matrix is not None and width is not None and height is not None
     if len(matrix) != 9 or not all(_finite(v) for v in matrix):
@@ -109,7 +119,7 @@ def _camera(root: Path, options: CaptureOptions) -> Camera:
             _INTRINSICS, "intrinsic_matrix: expected 9 finite numbers (3x3, column-major)"
         )
     fx, fy, cx, cy = (float(matrix[i]) for i in (0, 4, 6, 7))
-    return Camera(fx, fy, cx, cy, (width, height), _INTRINSICS)
+    return Camera(fx, fy, cx, cy, (width, height), _INTRINSICS), scale or DEPTH_SCALE
 
 
 def _finite(value: object) -> bool:
@@ -182,7 +192,7 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     colour_folder = _colour_folder(root)
     assert log is not None and colour_folder is not None
     _check_single_log(root, log)
-    camera = _camera(root, options)
+    camera, scale = _camera(root, options)
     colour = _files(colour_folder, _COLOUR_SUFFIXES)
     depth = _files(root / "depth", {".png"})
     if len(colour) != len(depth):
@@ -192,7 +202,7 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
             f"{colour_folder.name}/: they are paired by sorted order, so the counts must agree",
         )
     shown = rel(log, root)
-    listing = Listing()
+    listing = Listing(resample_depth=True)
     for frame, number, c2w in _read_log(log, shown):
         where = f"{shown}:line {number}"
         if frame > len(colour):
@@ -201,6 +211,6 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
             )
             continue
         rgb = colour[frame - 1]
-        spec = FrameSpec(rgb.stem, rgb, depth[frame - 1], c2w, camera, where)
+        spec = FrameSpec(rgb.stem, rgb, depth[frame - 1], c2w, camera, where, depth_scale=scale)
         add_if_present(listing, spec, root)
     return listing

@@ -139,6 +139,30 @@ def test_counts_and_intrinsics_file(rgbd_scene: RgbdScene, tmp_path: Path) -> No
         read_capture(root, OPTIONS)
 
 
+def test_stray_dataset_depth_scale_and_lower_resolution(tmp_path: Path) -> None:
+    """Stray's dataset format: color/ + depth/ at a lower resolution (same aspect ratio), a
+    depth_scale in camera_intrinsic.json, scene/trajectory.log from ``stray studio integrate``."""
+    scene = make_scene(n=2)
+    root = tmp_path / "stray"
+    for i in range(scene.n):
+        write_image(root / "color" / f"{i:06d}.jpg", scene.rgb[i])
+        raw = np.rint(scene.depth[i] * 5000.0).astype(np.uint16)[::2, ::2]
+        write_image(root / "depth" / f"{i:06d}.png", raw)
+    (root / "scene").mkdir()
+    (root / "scene" / "trajectory.log").write_text(log_text(scene.c2w))
+    doc = {"depth_format": "Z16", "depth_scale": 5000.0, "fps": 60.0, **intrinsic_json(scene.k)}
+    (root / "camera_intrinsic.json").write_text(json.dumps(doc))
+    capture = read_capture(root)
+    assert capture.layout == "redwood" and capture.names == ("000000", "000001")
+    frame = capture.frames[1]
+    assert frame.depth.shape == (12, 16)
+    assert frame.depth[5, 7] == pytest.approx(scene.depth[1][4, 6], abs=1e-6)
+    doc["depth_scale"] = 0
+    (root / "camera_intrinsic.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match=r"camera_intrinsic\.json: depth_scale: must be > 0"):
+        read_capture(root)
+
+
 def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     check_zip_with_options(rgbd_scene, write_redwood(rgbd_scene, tmp_path / "cap"), "redwood")
 

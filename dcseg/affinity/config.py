@@ -62,14 +62,29 @@ class AffinityConfig:
     min_scale_points: int = option(10, bounds=(2, 1000000))
     """A mask with fewer valid 3D points (after erosion) has no scale and is not used."""
 
-    min_mask_score: float = option(0.0, bounds=(0.0, 1.0))
+    min_mask_score: float = option(
+        0.0,
+        bounds=(0.0, 1.0),
+        help="drop class-agnostic masks whose detector score is below this (0 = keep all)",
+        flag="--min-mask-score",
+    )
     """Class-agnostic masks whose detector ``score`` (COCO results, ``.npz`` ``scores``) is below
     this do not train the features; 0 = keep all (:mod:`dcseg.io.mask_formats.scores`)."""
 
-    min_predicted_iou: float = option(0.0, bounds=(0.0, 1.0))
+    min_predicted_iou: float = option(
+        0.0,
+        bounds=(0.0, 1.0),
+        help="drop SAM masks whose predicted_iou is below this (0 = keep all)",
+        flag="--min-predicted-iou",
+    )
     """Likewise for SAM's ``predicted_iou`` (SAM ``amg.py`` already drops masks below 0.88)."""
 
-    min_stability_score: float = option(0.0, bounds=(0.0, 1.0))
+    min_stability_score: float = option(
+        0.0,
+        bounds=(0.0, 1.0),
+        help="drop SAM masks whose stability_score is below this (0 = keep all)",
+        flag="--min-stability-score",
+    )
     """Likewise for SAM's ``stability_score`` (``amg.py`` already drops masks below 0.95)."""
 
     seed: int = option(0, fixed=True)

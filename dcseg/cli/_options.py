@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from types import NoneType
 from typing import Any
 
+from dcseg.affinity.config import AffinityConfig
 from dcseg.config import CaptureOptions, FrameBudget, JobConfig, PipelineConfig
 from dcseg.errors import InputError
 from dcseg.fields import BOUNDS, CHOICES, FLAG, HELP, NONE_WORD
@@ -28,6 +29,7 @@ GROUPS: dict[str, dict[str, Member]] = {
     "budget": settable(FrameBudget),
     "segment": SEGMENT_OPTIONS,
     "reconstruct": settable(ReconstructConfig),
+    "affinity": settable(AffinityConfig),
 }
 """The job option groups that have flags, with their settable fields."""
 
@@ -79,6 +81,7 @@ TITLES = {
     "budget": "frame budget (default: the preset's)",
     "segment": "method",
     "reconstruct": "reconstruction (default: the preset's)",
+    "affinity": "mask scores (docs/masks.md; default: keep every mask)",
 }
 
 

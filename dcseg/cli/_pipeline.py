@@ -21,7 +21,7 @@ def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
     """``--preset``, the capture, budget and segment flags (:mod:`dcseg.cli._options`),
     ``--surface-priors --refine-poses --device --overwrite --quiet``."""
     parser.add_argument("--preset", choices=("fast", "paper"), default="fast", help="(fast)")
-    add_groups(parser, "segment", "capture", "budget")
+    add_groups(parser, "segment", "capture", "budget", "affinity")
     group = parser.add_argument_group("reconstruction")
     add_reconstruct_flags(group)
     add_device_option(group)
@@ -75,7 +75,7 @@ def add_output_options(parser: argparse.ArgumentParser) -> None:
 
 def job_config(args: argparse.Namespace) -> JobConfig:
     """The config of ``--preset`` and every option flag given, through the one builder."""
-    options = options_of(args, "segment", "capture", "budget")
+    options = options_of(args, "segment", "capture", "budget", "affinity")
     options["reconstruct"] = reconstruct_fields(args)
     return build(args.preset, options)
 

@@ -201,3 +201,17 @@ def test_grounded_sam2_per_frame_results(tmp_path: Path, frames: int) -> None:
     np.testing.assert_array_equal(decode_masks(read["f0"]), masks)
     kept = read_agnostic_masks(tmp_path, min_scores=MinScores(score=0.5))["f0"]
     np.testing.assert_array_equal(decode_masks(kept), masks[[0]])
+
+
+def test_run_flags_set_the_thresholds() -> None:
+    from dcseg.cli import build_parser
+    from dcseg.cli._pipeline import job_config
+    from dcseg.io.mask_formats.scores import min_scores
+
+    args = ["run", "c", "--agnostic-masks", "a", "--semantic-masks", "s", "--vocabulary", "v"]
+    parsed = build_parser().parse_args(
+        [*args, "--out", "o", "--min-predicted-iou", "0.9", "--min-stability-score", "0.95"]
+    )
+    assert min_scores(job_config(parsed).pipeline.affinity) == MinScores(0.0, 0.9, 0.95)
+    with pytest.raises(SystemExit, match="--min-mask-score"):
+        job_config(build_parser().parse_args([*args, "--out", "o", "--min-mask-score", "2"]))

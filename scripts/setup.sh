@@ -15,6 +15,9 @@ python3 -c 'import sys; assert sys.version_info >= (3, 11), "dcseg needs Python 
 # dcseg/viewer/static/viewer.js; without npm, `dcseg view` and /viewer/{id} say how to build it.
 if command -v npm >/dev/null; then
     (cd viewer && npm ci --no-audit --no-fund --loglevel=error && npm run --silent build)
+    # The independent readers the export tests run (glTF validator, splat-transform); registry
+    # tarballs only (--ignore-scripts: nothing is downloaded at install time).
+    (cd tools/export-check && npm ci --no-audit --no-fund --ignore-scripts --loglevel=error)
 else
     echo "setup: npm not found; the browser viewer is not built (see viewer/)" >&2
 fi

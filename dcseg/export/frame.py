@@ -5,9 +5,9 @@ A run's world frame is the capture's: camera poses are camera-to-world with Open
 every capture layout, so it is estimated as the mean of the cameras' "up" (their -y axis,
 ``-c2w[:3, 1]``): people hold capture devices roughly level. An estimate within
 :data:`SNAP_DEGREES` of a world axis is snapped to that axis. The rotation that takes this up
-to +Y (glTF 2.0 and WebXR are Y-up, right-handed, metres) is applied to every GLB node and
-written, with the rest, to ``frame.json``. Gaussian files (PLY, SPZ, .splat) keep world
-coordinates, as 3DGS tools expect.
+to +Y (glTF 2.0 and WebXR are Y-up, right-handed, metres) is applied to every GLB node, baked
+into SPZ files (SPZ stores RUB, glTF's axes; :mod:`dcseg.export.axes`) and written, with the
+rest, to ``frame.json``. PLY and .splat files keep world coordinates, as 3DGS tools expect.
 """
 
 from __future__ import annotations
@@ -83,8 +83,8 @@ def describe_frame(c2w: NDArray[np.float64] | None, applied_in: list[str]) -> di
             "layout": "row-major 4x4; gltf_point = matrix @ [world_point, 1]",
             "applied_in": applied_in,
         },
-        "gaussians": "PLY, SPZ and .splat files keep world coordinates (no turn applied; SPZ "
-        "without axis conversion, i.e. not in SPZ's RUB unless the matrix is applied)",
+        "gaussians": "PLY and .splat files keep world coordinates (no turn applied); SPZ files "
+        "are turned by the matrix (positions, rotations and SH) into SPZ's RUB axes",
     }
 
 

@@ -13,7 +13,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from numpy.typing import NDArray
+
 from dcseg.export.appearance import styled
+from dcseg.export.axes import gltf_turn, turned
 from dcseg.export.options import ExportOptions
 from dcseg.export.plan import ExportPlan, Written
 from dcseg.export.ply_file import (
@@ -41,6 +44,10 @@ ENCODERS: dict[str, tuple[str, Encoder]] = {
 }
 """Format name -> (file extension, encoder)."""
 
+GLTF_AXES = frozenset({"spz"})
+"""Formats whose specification fixes the axes (SPZ: RUB, glTF's): turned by ``frame.json``'s
+matrix (:mod:`dcseg.export.axes`); PLY and .splat keep world coordinates, as 3DGS tools expect."""
+
 PALETTE_SCENES = {"instance": "scene_by_instance.ply", "class": "scene_by_class.ply"}
 
 
@@ -48,17 +55,23 @@ def write_gaussians(plan: ExportPlan, folder: Path, fmt: str) -> Written:
     """Write ``plan``'s Gaussians in ``fmt`` (a key of :data:`ENCODERS`) into ``folder``."""
     ext, encode = ENCODERS[fmt]
     options = resolved(fmt, plan.options)
+    turn = gltf_turn(plan.run.path, options.capture) if fmt in GLTF_AXES else None
+
+    def table_of(rows: NDArray[Any], options: ExportOptions = options) -> SplatTable:
+        table = styled(plan.run, rows, options)
+        return table if turn is None else turned(table, turn)
+
     written = Written()
     for k in plan.ids:
         name = f"instance_{k}.{ext}"
-        encode(folder / name, styled(plan.run, plan.rows_of(k), options), options)
+        encode(folder / name, table_of(plan.rows_of(k)), options)
         written.files.append(name)
         written.per_instance[k] = name
     if not plan.whole:
         return written
     rows, written.ranges = plan.scene_rows()
     written.scene = f"scene.{ext}"
-    scene = styled(plan.run, rows, options)
+    scene = table_of(rows)
     encode(folder / written.scene, scene, options)
     written.files.append(written.scene)
     if fmt == "ply":

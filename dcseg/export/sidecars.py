@@ -14,6 +14,11 @@ from dcseg.export.plan import ExportPlan, Written
 from dcseg.io.jsonfile import write_json
 
 FRAME_FILE = "frame.json"
+APPLIED_IN = (
+    "scene.glb of format glb (every node's matrix)",
+    "scene.spz and instance_<k>.spz (baked into positions, rotations and SH: SPZ's RUB axes)",
+)
+"""Where ``frame.json``'s matrix is applied (every other file keeps world coordinates)."""
 
 
 def sidecar_name(fmt: str) -> str:
@@ -25,7 +30,7 @@ def write_sidecars(plan: ExportPlan, folder: Path, fmt: str, written: Written) -
     """Write ``instances.<fmt>.json`` and ``frame.json`` into ``folder``; returns their names."""
     write_json(folder / sidecar_name(fmt), instance_table(plan, fmt, written))
     c2w = poses(plan.run.path, plan.options.capture)
-    write_json(folder / FRAME_FILE, describe_frame(c2w, ["scene.glb (every node's matrix)"]))
+    write_json(folder / FRAME_FILE, describe_frame(c2w, list(APPLIED_IN)))
     return [sidecar_name(fmt), FRAME_FILE]
 
 

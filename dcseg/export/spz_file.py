@@ -3,9 +3,9 @@ Unity and Niantic's own tools read).
 
 SPZ quantises: positions to 24-bit fixed point with 12 fractional bits (0.24 mm steps, +-2 km),
 colours (SH DC) to 8 bits over +-3.33, log scales to 1/16, opacity to 8 bits of alpha, higher SH
-coefficients to 8 bits over +-1, rotations to the smallest-three 32-bit code. Coordinates are
-the run's world coordinates, unconverted (the SPZ library's ``UNSPECIFIED`` system, which is
-what ``gsply`` writes); SPZ's own convention is RUB, glTF's, reached by ``frame.json``'s matrix.
+coefficients to 8 bits over +-1, rotations to the smallest-three 32-bit code. SPZ stores RUB
+(x right, y up, z back: glTF's axes); the tables given here are already turned there by
+``frame.json``'s matrix (:mod:`dcseg.export.gaussians`), and ``gsply`` writes them as they are.
 """
 
 from __future__ import annotations

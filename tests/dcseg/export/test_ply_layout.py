@@ -11,6 +11,7 @@ import pytest
 
 from dcseg.export import ExportOptions, export_run
 from dcseg.io.splat_table import read_splat_table
+from tests.dcseg.export.node_tools import splat_table_csv
 
 INRIA = [
     *"x y z nx ny nz".split(),
@@ -82,3 +83,14 @@ def test_an_explicit_sh_degree_still_writes_floats_only(run: Path, tmp_path: Pat
     props = [line.split() for line in header.splitlines() if line.startswith("property")]
     assert [p[2] for p in props] == [n for n in INRIA if not n.startswith("f_rest_")]
     assert {p[1] for p in props} == {"float"}
+
+
+def test_splat_transform_reads_the_ply_as_written(out: Path, tmp_path: Path) -> None:
+    """A second implementation (PlayCanvas splat-transform) reads the same Gaussians."""
+    cols = splat_table_csv(out / "scene.ply", tmp_path / "scene.csv")
+    records = read_fixed_records(out / "scene.ply")
+    assert len(cols["x"]) == len(records)
+    for i, name in enumerate(INRIA):
+        if name in cols:
+            assert np.allclose(cols[name], records[:, i], atol=1e-6), name
+    assert sum(n.startswith("f_rest_") for n in cols) == 45

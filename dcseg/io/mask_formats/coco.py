@@ -48,15 +48,7 @@ def read_coco_masks(
     Raises:
         InputError: listing every problem found (the JSON file, the entry and its field).
     """
-    assert layout.index is not None
-    shown = display_path(layout.index, layout.root)
-    images, problems = _images(layout.data, shown)
-    problems += _attach(layout.data["annotations"], images, shown)
-    by_stem = {image.stem: image for image in images.values()}
-    if frames is not None:
-        kept, extra = frames.pick(dict.fromkeys(by_stem, layout.index), layout.path, "masks")
-        by_stem = {stem: by_stem[stem] for stem in kept}
-        problems += extra
+    shown, by_stem, problems = _listing(layout, frames, "masks")
     out: dict[str, AgnosticMasks] = {}
     for stem, image in sorted(by_stem.items()):
         rles: list[RLE] = []
@@ -83,15 +75,7 @@ def iter_coco_classes(
     """Every (selected) frame's class map painted from its annotations' ``category_id``:
     larger masks first, so a smaller object on a larger one keeps its class; pixels no
     annotation covers are unlabelled (-1). A problem in place of a frame that has one."""
-    assert layout.index is not None
-    shown = display_path(layout.index, layout.root)
-    images, problems = _images(layout.data, shown)
-    problems += _attach(layout.data["annotations"], images, shown)
-    by_stem = {image.stem: image for image in images.values()}
-    if frames is not None:
-        kept, extra = frames.pick(dict.fromkeys(by_stem, layout.index), layout.path, "class maps")
-        by_stem = {stem: by_stem[stem] for stem in kept}
-        problems += extra
+    shown, by_stem, problems = _listing(layout, frames, "class maps")
     yield from problems
     categories = CategoryMap.of(layout.data, vocabulary)
     for stem, image in sorted(by_stem.items()):
@@ -113,6 +97,23 @@ def iter_coco_classes(
         if size is not None:
             classes = resize_nearest(classes, size)
         yield SemanticMap(stem, classes, shown)
+
+
+def _listing(
+    layout: MaskLayout, frames: FrameSelection | None, what: str
+) -> tuple[str, dict[str, _Image], list[Problem]]:
+    """The JSON as messages name it, the (selected) images by frame stem with their
+    annotations, and the problems of ``images`` and ``annotations``."""
+    assert layout.index is not None
+    shown = display_path(layout.index, layout.root)
+    images, problems = _images(layout.data, shown)
+    problems += _attach(layout.data["annotations"], images, shown)
+    by_stem = {image.stem: image for image in images.values()}
+    if frames is not None:
+        kept, extra = frames.pick(dict.fromkeys(by_stem, layout.index), layout.path, what)
+        by_stem = {stem: by_stem[stem] for stem in kept}
+        problems += extra
+    return shown, by_stem, problems
 
 
 def _class_of(annotation: dict[str, Any], categories: CategoryMap) -> tuple[int, str]:

@@ -6,12 +6,12 @@ import base64
 import hashlib
 import json
 from datetime import datetime
-from typing import Any
+from typing import Any, cast
 
 from jobstore.models import Job
 from jobstore.store import Cursor
 from service.problems import ApiProblem
-from service.schemas import JobLinks, JobPublic, Progress
+from service.schemas import JobLinks, JobPublic, JobStatus, Progress
 
 
 def job_url(job_id: str) -> str:
@@ -22,7 +22,7 @@ def job_public(job: Job) -> JobPublic:
     url = job_url(job.id)
     return JobPublic(
         id=job.id,
-        status=job.status,
+        status=cast(JobStatus, job.status),  # the store writes only these
         stage=job.stage,
         progress=Progress(
             stage=job.stage,

@@ -9,6 +9,7 @@ embedded worker (:class:`LocalWorker`) when no broker is configured.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import shutil
 import time
@@ -25,7 +26,7 @@ from dcseg import __version__
 from jobstore.blobstore import Storage, make_storage
 from jobstore.settings import Settings, get_settings
 from jobstore.store import Store
-from service import problems
+from service import openapi, problems
 from service.deps import LOCAL_TENANT, AppState, make_limiter
 from service.exports import Exporter
 from service.queue import JobQueue, make_queue
@@ -253,6 +254,7 @@ def create_app(
         lifespan=lifespan,
     )
     problems.install(app)
+    app.openapi = functools.partial(openapi.document, app)  # type: ignore[method-assign]
     for module in (
         uploads,
         direct_uploads,

@@ -9,6 +9,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 logger = logging.getLogger(__name__)
@@ -125,37 +126,53 @@ def install(app: FastAPI) -> None:
     app.add_exception_handler(Exception, _server_error)
 
 
-PROBLEM_SCHEMA: dict[str, Any] = {
-    "content": {
-        PROBLEM_JSON: {
-            "schema": {
-                "type": "object",
-                "required": ["type", "title", "status"],
-                "properties": {
-                    "type": {"type": "string"},
-                    "title": {"type": "string"},
-                    "status": {"type": "integer"},
-                    "detail": {"type": "string"},
-                    "instance": {"type": "string"},
-                    "errors": {
-                        "type": "array",
-                        "items": {
-                            "type": "object",
-                            "properties": {
-                                "path": {"type": "string"},
-                                "reason": {"type": "string"},
-                            },
-                        },
-                    },
-                    "job_id": {"type": "string"},
-                },
-            }
-        }
-    }
-}
-"""OpenAPI description of a problem body, used in route ``responses``."""
+class ProblemError(BaseModel):
+    """One refused field or file of a problem: where (``body.options.affinity.margin``, an
+    archive member) and why."""
+
+    model_config = ConfigDict(extra="allow")
+
+    path: str
+    reason: str
+
+
+class Problem(BaseModel):
+    """An RFC 9457 problem body, as every 4xx/5xx answer carries it (``application/problem+json``).
+
+    ``type`` is ``urn:dcseg:problem:<slug>`` (``about:blank`` for plain HTTP errors); the
+    optional members are extensions some problems add; clients must tolerate others."""
+
+    model_config = ConfigDict(extra="allow", title="Problem")
+
+    type: str
+    title: str
+    status: int
+    detail: str
+    instance: str
+    """The request's path."""
+    errors: list[ProblemError] | None = None
+    """Each refused field or file (validation errors, refused uploads and exports)."""
+    job_id: str | None = None
+    """The job the problem concerns."""
+    limit: int | None = None
+    """The byte limit a too large upload passed (413)."""
+    quota: int | None = None
+    """The tenant's storage quota in bytes (507 ``storage-quota-exceeded``)."""
+    used: int | None = None
+    """The bytes the tenant stores (507 ``storage-quota-exceeded``)."""
+    free: int | None = None
+    """The storage volume's free bytes (507 ``insufficient-storage``)."""
+    checks: dict[str, str] | None = None
+    """``/readyz``: each dependency's state (503 ``not-ready``)."""
+
+
+PROBLEM_REF = "#/components/schemas/Problem"
+"""Where the OpenAPI document describes :class:`Problem` (``service.openapi`` puts it there)."""
+
+PROBLEM_CONTENT: dict[str, Any] = {"content": {PROBLEM_JSON: {"schema": {"$ref": PROBLEM_REF}}}}
+"""OpenAPI content of a problem response: a reference to the one ``Problem`` component."""
 
 
 def problem_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
     """``responses=`` entries documenting problem bodies for ``codes``."""
-    return {code: {"description": HTTPStatus(code).phrase, **PROBLEM_SCHEMA} for code in codes}
+    return {code: {"description": HTTPStatus(code).phrase, **PROBLEM_CONTENT} for code in codes}

@@ -4,15 +4,19 @@ from __future__ import annotations
 
 import dataclasses
 from datetime import datetime
-from typing import TYPE_CHECKING, Any, Literal, get_type_hints
+from typing import TYPE_CHECKING, Annotated, Any, Literal, get_type_hints
 
-from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic import BaseModel, ConfigDict, Field, RootModel, create_model, model_validator
 
 from dcseg.io.instance_record import InstanceRecord
 from dcseg.options import JobOptions, PresetName
 
-JobStatus = Literal["queued", "running", "succeeded", "failed", "canceling", "canceled"]
-"""Job statuses; clients must tolerate values added later."""
+JobStatus = Literal["queued", "running", "canceling", "succeeded", "failed", "canceled"]
+"""Job statuses (``jobstore.contract.ACTIVE`` then ``TERMINAL``; a test keeps them equal);
+clients must tolerate values added later."""
+
+TerminalStatus = Literal["succeeded", "failed", "canceled"]
+"""The statuses a job never leaves (``jobstore.contract.TERMINAL``)."""
 
 
 class JobCreate(BaseModel):
@@ -69,8 +73,9 @@ class JobLinks(BaseModel):
 
 class JobPublic(BaseModel):
     id: str
-    status: str
-    """One of queued, running, succeeded, failed, canceling, canceled (more may be added)."""
+    status: JobStatus
+    """queued, running or canceling until the job ends succeeded, failed or canceled (more
+    may be added)."""
     stage: str | None
     progress: Progress
     error: dict[str, Any] | None
@@ -177,7 +182,8 @@ class ArtifactsPublic(BaseModel):
 
 
 class Health(BaseModel):
-    status: str
+    status: Literal["ok"]
+    """``ok``: a failed ``/readyz`` check answers a ``not-ready`` problem instead."""
     checks: dict[str, str] = Field(default_factory=dict)
 
 
@@ -265,3 +271,81 @@ class ExportPublic(BaseModel):
     files: list[ArtifactPublic]
     """The export's files (empty while it runs), downloaded like artifacts (ETag, Range)."""
     links: ExportLinks
+
+
+class StatusEventData(BaseModel):
+    """``event: status``: the job changed status (queued, started, cancel asked)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    status: JobStatus
+    message: str | None = None
+
+
+class ProgressEventData(BaseModel):
+    """``event: progress``: a stage reported progress (as ``JobPublic.progress``)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    stage: str
+    stage_index: int
+    """0-based index of the stage."""
+    stage_count: int
+    fraction: float
+    """Overall fraction done, 0 to 1."""
+    message: str | None = None
+
+
+class LogEventData(BaseModel):
+    """``event: log``: a line of the worker's log, with the stage it belongs to."""
+
+    model_config = ConfigDict(extra="allow")
+
+    message: str
+    stage: str | None = None
+
+
+class CompletedEventData(BaseModel):
+    """``event: completed``: the job ended; the last event of the stream."""
+
+    model_config = ConfigDict(extra="allow")
+
+    status: TerminalStatus
+    message: str | None = None
+    error: dict[str, Any] | None = None
+    """The failure (``type``, ``detail``, more), as ``JobPublic.error``; None on success."""
+
+
+class StatusEvent(BaseModel):
+    event: Literal["status"]
+    id: int
+    """The job's event number (send it back as ``Last-Event-ID``)."""
+    data: StatusEventData
+
+
+class ProgressEvent(BaseModel):
+    event: Literal["progress"]
+    id: int
+    data: ProgressEventData
+
+
+class LogEvent(BaseModel):
+    event: Literal["log"]
+    id: int
+    data: LogEventData
+
+
+class CompletedEvent(BaseModel):
+    event: Literal["completed"]
+    id: int
+    data: CompletedEventData
+
+
+class JobEvent(RootModel[StatusEvent | ProgressEvent | LogEvent | CompletedEvent]):
+    """One server-sent event of ``GET /v1/jobs/{job_id}/events``: its ``event:`` line names
+    the type, ``id:`` its number and ``data:`` holds the JSON the type's schema describes.
+    (OpenAPI 3.1 has no item schema for event streams; this is what 3.2 calls ``itemSchema``.)"""
+
+    root: Annotated[
+        StatusEvent | ProgressEvent | LogEvent | CompletedEvent, Field(discriminator="event")
+    ]

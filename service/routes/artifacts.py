@@ -25,7 +25,10 @@ def _check_job(job_id: str, state: StateDep, tenant: str) -> None:
 
 
 @router.get(
-    "/{job_id}/artifacts", response_model=ArtifactsPublic, responses=problem_responses(401, 404)
+    "/{job_id}/artifacts",
+    response_model=ArtifactsPublic,
+    responses=problem_responses(401, 404),
+    operation_id="listArtifacts",
 )
 def list_artifacts(job_id: str, state: StateDep, tenant: TenantDep) -> ArtifactsPublic:
     """The files of the job's finished stages (immutable once listed). With object storage
@@ -76,6 +79,7 @@ def _headers(found: artifacts.Artifact) -> dict[str, str]:
         304: {"description": "Not Modified"},
         **problem_responses(401, 404, 416),
     },
+    operation_id="downloadArtifact",
 )
 def download_artifact(
     job_id: str,
@@ -132,6 +136,7 @@ def send_file(
         304: {"description": "Not Modified"},
         **problem_responses(401, 404),
     },
+    operation_id="headArtifact",
 )
 def artifact_headers(
     job_id: str,

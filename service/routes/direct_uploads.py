@@ -63,6 +63,7 @@ def _meta_key(storage: S3Storage, tenant: str, upload_id: str) -> str:
     status_code=201,
     response_model=DirectUploadPublic,
     responses=problem_responses(401, 409, 413, 422, 429, 507),
+    operation_id="createDirectUpload",
 )
 def create_direct_upload(
     body: DirectUploadCreate, state: StateDep, tenant: TenantDep
@@ -149,6 +150,7 @@ def _discard(storage: S3Storage, tenant: str, upload_id: str) -> None:
     status_code=201,
     response_model=UploadPublic,
     responses=problem_responses(401, 404, 409, 413, 422, 429, 503, 507),
+    operation_id="completeDirectUpload",
 )
 async def complete_direct_upload(
     upload_id: str,

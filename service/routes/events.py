@@ -35,6 +35,9 @@ router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
 KEEPALIVE_S = 15.0
 
+JOB_EVENT_REF = "#/components/schemas/JobEvent"
+"""One event of the stream (``service.schemas.JobEvent``; ``service.openapi`` adds it)."""
+
 
 def draining(app: Starlette) -> asyncio.Event:
     """Set once the server begins shutting down; open event streams then end. The lifespan
@@ -153,9 +156,14 @@ class SlotStreamingResponse(StreamingResponse):
     "/{job_id}/events",
     response_class=StreamingResponse,
     responses={
-        200: {"content": {"text/event-stream": {}}, "description": "event stream"},
+        200: {
+            "description": "event stream: each event as `JobEvent` describes it (`event:` "
+            "status, progress, log or completed; `id:` its number; `data:` its JSON)",
+            "content": {"text/event-stream": {"schema": {"$ref": JOB_EVENT_REF}}},
+        },
         **problem_responses(401, 404, 422, 429),
     },
+    operation_id="streamJobEvents",
 )
 async def job_events(
     job_id: str,

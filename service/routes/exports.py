@@ -211,7 +211,12 @@ EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 
 
-@router.get("/{job_id}/exports/{format}", response_model=ExportPublic, responses=EXPORT_RESPONSES)
+@router.get(
+    "/{job_id}/exports/{format}",
+    response_model=ExportPublic,
+    responses=EXPORT_RESPONSES,
+    operation_id="getSceneExport",
+)
 async def scene_export(asked: SceneAsked, exporter: ExporterDep) -> Response:
     """The whole scene in one format: made on the first request and cached. 202 with
     ``Retry-After`` while it is being made; 422 when the job cannot be exported so (or the
@@ -223,6 +228,7 @@ async def scene_export(asked: SceneAsked, exporter: ExporterDep) -> Response:
     "/{job_id}/instances/{k}/exports/{format}",
     response_model=ExportPublic,
     responses=EXPORT_RESPONSES,
+    operation_id="getInstanceExport",
 )
 async def instance_export(asked: InstanceAsked, exporter: ExporterDep) -> Response:
     """One object alone in one format (made on demand and cached, as the scene's)."""
@@ -273,12 +279,17 @@ HEAD_RESPONSES: dict[int | str, dict[str, Any]] = {
 SCENE_FILE = "/{job_id}/exports/{format}/{name:path}"
 INSTANCE_FILE = "/{job_id}/instances/{k}/exports/{format}/{name:path}"
 
-# One route function per path and method: FastAPI names each operation (operationId, summary)
-# after its function, and a HEAD declared with its GET (``api_route``) would share the GET's
+# One route function per path and method: FastAPI names each operation's summary after its
+# function, and a HEAD declared with its GET (``api_route``) would share the GET's
 # operationId, summary and Range parameters in the OpenAPI document.
 
 
-@router.get(SCENE_FILE, response_class=StreamingResponse, responses=FILE_RESPONSES)
+@router.get(
+    SCENE_FILE,
+    response_class=StreamingResponse,
+    responses=FILE_RESPONSES,
+    operation_id="downloadSceneExportFile",
+)
 def download_scene_export(
     asked: SceneAsked,
     name: FileName,
@@ -290,7 +301,12 @@ def download_scene_export(
     return _download(asked, name, range_header, if_range, if_none_match)
 
 
-@router.head(SCENE_FILE, response_class=Response, responses=HEAD_RESPONSES)
+@router.head(
+    SCENE_FILE,
+    response_class=Response,
+    responses=HEAD_RESPONSES,
+    operation_id="headSceneExportFile",
+)
 def scene_export_headers(
     asked: SceneAsked, name: FileName, if_none_match: IfNoneMatch = None
 ) -> Response:
@@ -298,7 +314,12 @@ def scene_export_headers(
     return _head(asked, name, if_none_match)
 
 
-@router.get(INSTANCE_FILE, response_class=StreamingResponse, responses=FILE_RESPONSES)
+@router.get(
+    INSTANCE_FILE,
+    response_class=StreamingResponse,
+    responses=FILE_RESPONSES,
+    operation_id="downloadInstanceExportFile",
+)
 def download_instance_export(
     asked: InstanceAsked,
     name: FileName,
@@ -310,7 +331,12 @@ def download_instance_export(
     return _download(asked, name, range_header, if_range, if_none_match)
 
 
-@router.head(INSTANCE_FILE, response_class=Response, responses=HEAD_RESPONSES)
+@router.head(
+    INSTANCE_FILE,
+    response_class=Response,
+    responses=HEAD_RESPONSES,
+    operation_id="headInstanceExportFile",
+)
 def instance_export_headers(
     asked: InstanceAsked, name: FileName, if_none_match: IfNoneMatch = None
 ) -> Response:

@@ -22,7 +22,7 @@ _CHECK_THREADS = 2
 """Threads of the readiness checks, apart from the threadpool the sync routes use."""
 
 
-@router.get("/healthz", response_model=Health)
+@router.get("/healthz", response_model=Health, operation_id="getHealth")
 async def healthz() -> Health:
     """The process answers (on the event loop: never waits for a thread)."""
     return Health(status="ok")
@@ -58,7 +58,9 @@ def _limiter(request: Request) -> anyio.CapacityLimiter:
     return limiter
 
 
-@router.get("/readyz", response_model=Health, responses=problem_responses(503))
+@router.get(
+    "/readyz", response_model=Health, responses=problem_responses(503), operation_id="getReadiness"
+)
 async def readyz(request: Request) -> JSONResponse:
     """Ready to take jobs: the database answers, storage is writable, the broker answers.
     The checks run on threads of their own, so a busy threadpool does not delay them."""

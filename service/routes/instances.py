@@ -37,6 +37,7 @@ def instance_public(job_id: str, record: dict[str, Any]) -> InstancePublic:
     "/{job_id}/instances",
     response_model=InstancesPublic,
     responses=problem_responses(400, 401, 404, 409, 422),
+    operation_id="listInstances",
 )
 def list_instances(
     job_id: str,
@@ -71,6 +72,7 @@ def list_instances(
     "/{job_id}/instances/{k}",
     response_model=InstancePublic,
     responses=problem_responses(401, 404, 409, 422),
+    operation_id="getInstance",
 )
 def get_instance(job_id: str, k: InstanceId, state: StateDep, tenant: TenantDep) -> InstancePublic:
     """One object: its class, score, size, box, visibility and download links per format."""

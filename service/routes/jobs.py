@@ -146,6 +146,7 @@ def _submit(state: AppState, tenant: str, body: JobCreate) -> JSONResponse:
     status_code=202,
     response_model=JobPublic,
     responses=problem_responses(400, 401, 404, 409, 422, 429, 503),
+    operation_id="createJob",
 )
 def create_job(
     body: JobCreate,
@@ -161,7 +162,12 @@ def create_job(
         return request.keep(_submit(state, tenant, body))
 
 
-@router.get("", response_model=JobsPublic, responses=problem_responses(400, 401, 422))
+@router.get(
+    "",
+    response_model=JobsPublic,
+    responses=problem_responses(400, 401, 422),
+    operation_id="listJobs",
+)
 def list_jobs(
     state: StateDep,
     tenant: TenantDep,
@@ -182,6 +188,7 @@ def list_jobs(
     "/{job_id}",
     response_model=JobPublic,
     responses={304: {"description": "Not Modified"}, **problem_responses(401, 404)},
+    operation_id="getJob",
 )
 def get_job(
     job_id: str,
@@ -210,7 +217,10 @@ def _cancel(job_id: str, state: AppState, tenant: str) -> Response:
 
 
 @router.post(
-    "/{job_id}:cancel", response_model=JobPublic, responses=problem_responses(401, 404, 409)
+    "/{job_id}:cancel",
+    response_model=JobPublic,
+    responses=problem_responses(401, 404, 409),
+    operation_id="cancelJob",
 )
 def cancel_job(job_id: str, state: StateDep, tenant: TenantDep) -> Response:
     """Cancel: a queued job ends ``canceled`` at once, a running one passes through
@@ -223,12 +233,18 @@ def cancel_job(job_id: str, state: StateDep, tenant: TenantDep) -> Response:
     response_model=JobPublic,
     responses=problem_responses(401, 404, 409),
     include_in_schema=False,
+    operation_id="cancelJobAlias",
 )
 def cancel_job_alias(job_id: str, state: StateDep, tenant: TenantDep) -> Response:
     return _cancel(job_id, state, tenant)
 
 
-@router.delete("/{job_id}", status_code=204, responses=problem_responses(401, 404, 409))
+@router.delete(
+    "/{job_id}",
+    status_code=204,
+    responses=problem_responses(401, 404, 409),
+    operation_id="deleteJob",
+)
 async def delete_job(job_id: str, state: StateDep, tenant: TenantDep) -> Response:
     """Delete a finished job and its artifacts. An unfinished job answers 409: cancel it first
     and delete it once it is ``canceled``."""

@@ -133,6 +133,7 @@ async def _accept(
     response_model=UploadPublic,
     openapi_extra=_BODY,
     responses=problem_responses(400, 401, 409, 413, 415, 422, 429, 503, 507),
+    operation_id="createUpload",
 )
 async def create_upload(
     request: Request,
@@ -166,7 +167,12 @@ async def create_upload(
             uploads.remove(incoming.tmp)  # gone already when the upload was kept
 
 
-@router.get("/{upload_id}", response_model=UploadPublic, responses=problem_responses(401, 404))
+@router.get(
+    "/{upload_id}",
+    response_model=UploadPublic,
+    responses=problem_responses(401, 404),
+    operation_id="getUpload",
+)
 def get_upload(upload_id: str, state: StateDep, tenant: TenantDep) -> UploadPublic:
     """An upload's digest, size and validation summary."""
     upload = state.store.get_upload(upload_id, tenant)
@@ -175,7 +181,12 @@ def get_upload(upload_id: str, state: StateDep, tenant: TenantDep) -> UploadPubl
     return upload_public(upload)
 
 
-@router.delete("/{upload_id}", status_code=204, responses=problem_responses(401, 404, 409))
+@router.delete(
+    "/{upload_id}",
+    status_code=204,
+    responses=problem_responses(401, 404, 409),
+    operation_id="deleteUpload",
+)
 async def delete_upload(upload_id: str, state: StateDep, tenant: TenantDep) -> Response:
     """Delete an upload and its files; 409 while jobs refer to it (delete those first)."""
     try:

@@ -25,11 +25,15 @@ class JobCreate(BaseModel):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        # "upload_id or parent_job_id" as a ``not``: an ``anyOf`` of two partial schemas is
+        # read by SDK generators as two body types that lose the other fields
         json_schema_extra={
-            "anyOf": [
-                {"required": [name], "properties": {name: {"type": "string"}}}
-                for name in ("upload_id", "parent_job_id")
-            ]
+            "not": {
+                "properties": {
+                    "upload_id": {"type": "null"},
+                    "parent_job_id": {"type": "null"},
+                }
+            }
         },
     )
 
@@ -246,7 +250,7 @@ class InstancesPublic(BaseModel):
     """SHA-256 of the ``scene_labelled.ply`` whose ``instance_id`` column the ids index."""
 
 
-ExportFormat = Literal["ply", "spz", "splat", "glb", "obj"]
+ExportFormat = Literal["ply", "spz", "splat", "glb", "glb-mesh", "obj"]
 """Export formats: those of ``dcseg.export.FORMATS`` (a test keeps them equal)."""
 
 

@@ -7,14 +7,18 @@ formats, meshes, and the coordinate frame they are in.
   export also ``scene.ply`` (grouped by object), ``scene_by_instance.ply`` and
   ``scene_by_class.ply`` (palette colours in the DC term);
 * ``spz`` / ``splat``: ``instance_<k>.spz|splat`` per object, and ``scene.spz|splat``;
-* ``glb``: ``scene.glb``, one node per object (name, class, score in the node's ``extras``),
-  meshed from the run's depth, turned to glTF's Y-up;
+* ``glb``: ``instance_<k>.glb`` per object and ``scene.glb``: Gaussians with the Khronos
+  ``KHR_gaussian_splatting`` extension, one node per object (name, class, score in the node's
+  ``extras``), in glTF's Y-up;
+* ``glb-mesh``: ``scene_mesh.glb``, one mesh node per object, meshed from the run's depth,
+  turned to glTF's Y-up;
 * ``obj``: ``instance_<k>.obj`` per object and ``scene_mesh.ply`` (vertex colours and an
   ``instance_id`` per vertex);
 
 and always ``instances.<fmt>.json`` (the objects' records, each with its file, palette colour
 and, for Gaussian scene files, ``[offset, count]``) and ``frame.json`` (see
-:mod:`dcseg.export.frame`). Importing this package, and the Gaussian formats, need no torch.
+:mod:`dcseg.export.frame`). Importing this package, and the Gaussian formats (``glb`` too),
+need no torch.
 """
 
 from __future__ import annotations
@@ -50,7 +54,8 @@ _WRITERS = {
     "ply": "dcseg.export.gaussians:write_gaussians",
     "spz": "dcseg.export.gaussians:write_gaussians",
     "splat": "dcseg.export.gaussians:write_gaussians",
-    "glb": "dcseg.export.meshes:write_meshes",
+    "glb": "dcseg.export.gaussians:write_glb_splats",
+    "glb-mesh": "dcseg.export.meshes:write_meshes",
     "obj": "dcseg.export.meshes:write_meshes",
 }
 """Format -> the writer ``module:function`` (imported on use: meshes pull in trimesh, numba)."""

@@ -32,9 +32,14 @@ C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633259
 _SAMPLES = 64
 
 
+def gltf_frame(run: Path, capture: Path | None, applied_in: list[str]) -> dict[str, Any]:
+    """``frame.json``'s body for ``run`` (poses from its state, else ``capture``)."""
+    return describe_frame(poses(run, capture), applied_in)
+
+
 def gltf_turn(run: Path, capture: Path | None) -> NDArray[np.float64]:
     """``[3, 3]`` rotation from the run's world to glTF's axes (``frame.json``'s matrix)."""
-    frame = describe_frame(poses(run, capture), [])
+    frame = gltf_frame(run, capture, [])
     return np.asarray(frame["to_gltf"]["matrix"], np.float64)[:3, :3]
 
 

@@ -13,12 +13,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.export.appearance import styled
-from dcseg.export.axes import gltf_turn, turned
+from dcseg.export.axes import gltf_frame, gltf_turn, turned
+from dcseg.export.gltf_splats import write_splat_glb
 from dcseg.export.options import ExportOptions
-from dcseg.export.plan import ExportPlan, Written
+from dcseg.export.plan import ExportPlan, Written, node_extras
 from dcseg.export.ply_file import (
     INRIA_SH_DEGREE,
     LABELLED_SCENE,
@@ -99,3 +101,38 @@ def _ply_scene_extras(
         painted = replace(options, colour=mode)  # type: ignore[arg-type]
         write_inria_ply(folder / name, styled(plan.run, rows, painted))
         written.files.append(name)
+
+
+UNASSIGNED_NODE = {"instance_id": -1, "name": "unassigned", "label": None, "class": None}
+"""The extras of the scene GLB's node holding the Gaussians of no object."""
+
+
+def write_glb_splats(plan: ExportPlan, folder: Path, fmt: str) -> Written:
+    """``instance_<k>.glb`` per object and, for a whole run, ``scene.glb`` (one node per object
+    and one ``unassigned``): ``KHR_gaussian_splatting`` in glTF's axes
+    (:mod:`dcseg.export.gltf_splats`)."""
+    run, options = plan.run, plan.options
+    frame = gltf_frame(run.path, options.capture, ["baked into every Gaussian (no node matrix)"])
+    turn = np.asarray(frame["to_gltf"]["matrix"], np.float64)[:3, :3]
+    extras = {"dcseg_frame": frame}
+    records = {int(r["id"]): r for r in plan.records}
+
+    def node(k: int) -> tuple[dict[str, Any], SplatTable]:
+        return node_extras(records[k]), turned(styled(run, plan.rows_of(k), options), turn)
+
+    written = Written()
+    nodes = [node(k) for k in plan.ids]
+    for k, pair in zip(plan.ids, nodes, strict=True):
+        name = f"instance_{k}.glb"
+        write_splat_glb(folder / name, [pair], extras)
+        written.files.append(name)
+        written.per_instance[k] = name
+        if len(pair[1]):
+            written.nodes[k] = pair[0]["name"]
+    if plan.whole:
+        rest = np.flatnonzero(~np.isin(run.instance_ids, plan.ids))
+        nodes.append((dict(UNASSIGNED_NODE), turned(styled(run, rest, options), turn)))
+        written.scene = "scene.glb"
+        write_splat_glb(folder / written.scene, nodes, extras)
+        written.files.append(written.scene)
+    return written

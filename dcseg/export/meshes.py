@@ -1,6 +1,6 @@
-"""Mesh exports: ``scene.glb`` (one node per object) or ``instance_<k>.obj`` per object and
-``scene_mesh.ply``, fused from the run's depth (:mod:`dcseg.export.tsdf`) and labelled by its
-Gaussians (:mod:`dcseg.export.surface`).
+"""Mesh exports: ``scene_mesh.glb`` (format ``glb-mesh``, one node per object) or
+``instance_<k>.obj`` per object and ``scene_mesh.ply``, fused from the run's depth
+(:mod:`dcseg.export.tsdf`) and labelled by its Gaussians (:mod:`dcseg.export.surface`).
 
 GLB nodes are named ``<class>_<k>`` (``object_<k>`` without a class) and carry
 ``{instance_id, name, class, class_id, score, n_gaussians}`` in their ``extras``; each node's
@@ -12,7 +12,6 @@ object claims (vertices far from every labelled Gaussian) are left out.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import trimesh
@@ -22,7 +21,7 @@ from plyfile import PlyData, PlyElement
 from dcseg.export.appearance import gaussian_rgb, styled
 from dcseg.export.depth import depth_views, poses
 from dcseg.export.frame import describe_frame
-from dcseg.export.plan import ExportPlan, Written
+from dcseg.export.plan import ExportPlan, Written, node_extras
 from dcseg.export.surface import (
     REACH_VOXELS,
     ObjectMesh,
@@ -52,19 +51,6 @@ def object_meshes(plan: ExportPlan) -> list[ObjectMesh]:
         colours = vertex_colours(got[0], run.splats.means[rows], rgb)
         meshes.append(ObjectMesh(k, got[0], got[1], colours))
     return meshes
-
-
-def node_extras(record: dict[str, Any]) -> dict[str, Any]:
-    """What a GLB node says about its object."""
-    k, label = int(record["id"]), record.get("label")
-    return {
-        "instance_id": k,
-        "name": f"{label or 'object'}_{k}",
-        "class": label,
-        "class_id": int(record.get("label_id", -1)),
-        "score": float(record.get("score", 0.0)),
-        "n_gaussians": int(record.get("n_gaussians", 0)),
-    }
 
 
 def _trimesh(mesh: ObjectMesh) -> trimesh.Trimesh:
@@ -117,11 +103,12 @@ def write_mesh_ply(path: Path, meshes: list[ObjectMesh]) -> None:
 
 
 def write_meshes(plan: ExportPlan, folder: Path, fmt: str) -> Written:
-    """Write ``scene.glb`` (``fmt == "glb"``) or per-object OBJs and ``scene_mesh.ply``."""
+    """Write ``scene_mesh.glb`` (``fmt == "glb-mesh"``) or per-object OBJs and
+    ``scene_mesh.ply``."""
     meshes = object_meshes(plan)
     written = Written()
-    if fmt == "glb":
-        written.scene = "scene.glb"
+    if fmt == "glb-mesh":
+        written.scene = "scene_mesh.glb"
         written.nodes = write_glb(folder / written.scene, plan, meshes)
         written.files.append(written.scene)
         return written

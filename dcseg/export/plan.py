@@ -72,3 +72,17 @@ class Written:
     ranges: dict[str, list[int]] = field(default_factory=dict)
     nodes: dict[int, str] = field(default_factory=dict)
     labels: dict[str, Any] = field(default_factory=dict)
+
+
+def node_extras(record: dict[str, Any]) -> dict[str, Any]:
+    """What a GLB node says about its object (mesh and splat GLBs alike)."""
+    k, label = int(record["id"]), record.get("label")
+    return {
+        "instance_id": k,
+        "name": f"{label or 'object'}_{k}",
+        "label": label,
+        "class": label,
+        "class_id": int(record.get("label_id", -1)),
+        "score": float(record.get("score", 0.0)),
+        "n_gaussians": int(record.get("n_gaussians", 0)),
+    }

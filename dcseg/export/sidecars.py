@@ -15,8 +15,9 @@ from dcseg.io.jsonfile import write_json
 
 FRAME_FILE = "frame.json"
 APPLIED_IN = (
-    "scene.glb of format glb (every node's matrix)",
-    "scene.spz and instance_<k>.spz (baked into positions, rotations and SH: SPZ's RUB axes)",
+    "glb: scene.glb and instance_<k>.glb (baked into positions, rotations and SH)",
+    "glb-mesh: scene_mesh.glb (every node's matrix)",
+    "spz: scene.spz and instance_<k>.spz (baked into positions, rotations and SH: SPZ's RUB)",
 )
 """Where ``frame.json``'s matrix is applied (every other file keeps world coordinates)."""
 
@@ -47,7 +48,7 @@ def instance_table(plan: ExportPlan, fmt: str, written: Written) -> dict[str, An
         extra = {"file": written.per_instance.get(k), "rgb": colour}
         if written.ranges:
             extra["gaussians"] = written.ranges.get(str(k))
-        if fmt == "glb":
+        if fmt in ("glb", "glb-mesh"):
             extra["node"] = written.nodes.get(k)
         rows.append({**record, **extra})
     return {

@@ -323,9 +323,9 @@ def test_a_real_run_exports_every_object(run_dir: Path, tmp_path: Path) -> None:
     total = len(read_splat_table(run_dir / "scene_labelled.ply"))
     counted = sum(len(read_splat_table(tmp_path / "ply" / r["file"])) for r in table["instances"])
     assert counted + table["unassigned_gaussians"][1] == total
-    export_run(run_dir, tmp_path / "glb", "glb")
-    scene = trimesh.load_scene(tmp_path / "glb" / "scene.glb")
-    records = json.loads((tmp_path / "glb" / "instances.glb.json").read_text())["instances"]
+    export_run(run_dir, tmp_path / "glb", "glb-mesh")
+    scene = trimesh.load_scene(tmp_path / "glb" / "scene_mesh.glb")
+    records = json.loads((tmp_path / "glb" / "instances.glb-mesh.json").read_text())["instances"]
     nodes = {r["node"]: r for r in records if r["node"] is not None}
     assert set(scene.graph.nodes_geometry) == set(nodes) and len(nodes) >= len(records) // 2
     assert all(name.startswith(f"{r['label'] or 'object'}_") for name, r in nodes.items())

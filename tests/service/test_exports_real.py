@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -102,11 +104,23 @@ def test_options_reach_the_exporter_and_are_cached_apart(env):
     assert [e["path"] for e in assert_problem(bad, 422)["errors"]] == ["query.colour"]
 
 
-def test_glb_of_one_object_has_its_node(env):
+def test_splat_glb_of_one_object_has_its_node(env):
+    client, job = env
+    body = _get(client, f"/v1/jobs/{job}/instances/1/exports/glb")
+    glb = next(f for f in body["files"] if f["name"].endswith(".glb"))
+    assert glb["media_type"] == "model/gltf-binary"
+    data = client.get(glb["url"], headers=AUTH_A).content
+    (length,) = struct.unpack("<I", data[12:16])
+    gltf = json.loads(data[20 : 20 + length])
+    assert gltf["extensionsUsed"] == ["KHR_gaussian_splatting"]
+    assert [(n["name"], n["extras"]["instance_id"]) for n in gltf["nodes"]] == [("box_1", 1)]
+
+
+def test_mesh_glb_of_one_object_has_its_node(env):
     import trimesh
 
     client, job = env
-    body = _get(client, f"/v1/jobs/{job}/instances/1/exports/glb")
+    body = _get(client, f"/v1/jobs/{job}/instances/1/exports/glb-mesh")
     glb = next(f for f in body["files"] if f["name"].endswith(".glb"))
     assert glb["media_type"] == "model/gltf-binary"
     data = client.get(glb["url"], headers=AUTH_A).content

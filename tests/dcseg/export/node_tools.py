@@ -30,13 +30,18 @@ def _installed(package: str) -> Path:
     return folder
 
 
-def splat_table_csv(path: Path, out: Path) -> dict[str, np.ndarray]:
-    """``path`` (.spz, .ply ...) read by PlayCanvas splat-transform, written as CSV: columns."""
+def splat_transform(path: Path, out: Path) -> None:
+    """Convert ``path`` to ``out`` (formats by extension) with PlayCanvas splat-transform."""
     folder = _installed("@playcanvas/splat-transform")
     cli = json.loads((folder / "package.json").read_text())["bin"]
     script = folder / (cli if isinstance(cli, str) else next(iter(cli.values())))
     subprocess.run([_node(), str(script), "-q", "-w", str(path), str(out)], check=True,
                    capture_output=True, timeout=300)  # fmt: skip
+
+
+def splat_table_csv(path: Path, out: Path) -> dict[str, np.ndarray]:
+    """``path`` (.spz, .ply ...) read by PlayCanvas splat-transform, written as CSV: columns."""
+    splat_transform(path, out)
     with out.open(newline="") as f:
         rows = list(csv.reader(f))
     values = np.asarray(rows[1:], dtype=np.float64)

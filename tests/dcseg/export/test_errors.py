@@ -20,7 +20,7 @@ from dcseg.export import (
 
 
 def test_unknown_format_names_the_formats(run: Path, tmp_path: Path) -> None:
-    with pytest.raises(UnknownFormatError, match="'usdz'.*ply, spz, splat, glb, obj"):
+    with pytest.raises(UnknownFormatError, match="'usdz'.*ply, spz, splat, glb, glb-mesh, obj"):
         export_run(run, tmp_path / "out", "usdz")
     assert not (tmp_path / "out").exists()
 
@@ -69,4 +69,4 @@ def test_options_out_of_range_name_the_field(field: str, value: object) -> None:
 
 
 def test_formats_are_the_documented_ones() -> None:
-    assert FORMATS == ("ply", "spz", "splat", "glb", "obj")
+    assert FORMATS == ("ply", "spz", "splat", "glb", "glb-mesh", "obj")

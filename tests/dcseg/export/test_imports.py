@@ -1,4 +1,5 @@
-"""The service image has no torch: the export package and its Gaussian formats must not need it."""
+"""The service image has no torch: the export package and its Gaussian formats (glb splats too)
+must not need it."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import json, sys
 from pathlib import Path
 import dcseg.export
 from dcseg.export import export_run
-for fmt in ("ply", "spz", "splat"):
+for fmt in ("ply", "spz", "splat", "glb"):
     export_run(Path(sys.argv[1]), Path(sys.argv[2]), fmt, instances=[1])
 export_run(Path(sys.argv[1]), Path(sys.argv[2]) / "all", "ply")
 print(json.dumps(sorted(m for m in sys.modules if m == "torch" or m.startswith("torch."))))

@@ -27,8 +27,8 @@ Y_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.fl
 @pytest.fixture(scope="module")
 def glb(run: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("glb")
-    export_run(run, out, "glb", options=OPTIONS)
-    return out / "scene.glb"
+    export_run(run, out, "glb-mesh", options=OPTIONS)
+    return out / "scene_mesh.glb"
 
 
 def test_tsdf_surface_lies_on_the_scene_and_faces_the_cameras(run: Path) -> None:
@@ -55,7 +55,7 @@ def test_glb_has_one_node_per_object_with_its_class_and_score(run: Path, glb: Pa
         assert extras["class"] == record["label"] == CLASSES[extras["class_id"]]
         assert extras["score"] == pytest.approx(record["score"])
         assert extras["name"] == node
-    table = json.loads((glb.parent / "instances.glb.json").read_text())
+    table = json.loads((glb.parent / "instances.glb-mesh.json").read_text())
     assert sorted(r["node"] for r in table["instances"]) == nodes
 
 
@@ -104,7 +104,7 @@ def test_a_run_without_depth_asks_for_the_capture(run: Path, tmp_path: Path) -> 
     shutil.copytree(run, bare)
     shutil.rmtree(bare / "state")
     with pytest.raises(InputError, match="holds no depth.*is gone; give the capture.*--capture"):
-        export_run(bare, tmp_path / "out", "glb", options=OPTIONS)
+        export_run(bare, tmp_path / "out", "glb-mesh", options=OPTIONS)
     assert list((tmp_path / "out").iterdir()) == []  # no partial files, no staging folder
     export_run(bare, tmp_path / "out", "ply")  # Gaussian formats need no depth
 
@@ -116,8 +116,8 @@ def test_a_run_without_depth_is_meshed_from_its_capture(run: Path, tmp_path: Pat
     capture = tmp_path / "capture"
     write_capture(make_capture(8, 64, 48), capture)
     options = ExportOptions(voxel_size=0.025, max_faces=1500, capture=capture)
-    export_run(bare, tmp_path / "out", "glb", options=options)
-    scene = trimesh.load_scene(tmp_path / "out" / "scene.glb")
+    export_run(bare, tmp_path / "out", "glb-mesh", options=options)
+    scene = trimesh.load_scene(tmp_path / "out" / "scene_mesh.glb")
     assert sorted(scene.graph.nodes_geometry) == ["box_1", "floor_2", "floor_3"]
     frame = json.loads((tmp_path / "out" / "frame.json").read_text())
     assert frame["world"]["up_axis"] == "+z"  # poses from the capture too
@@ -125,4 +125,4 @@ def test_a_run_without_depth_is_meshed_from_its_capture(run: Path, tmp_path: Pat
 
 def test_a_grid_over_the_voxel_limit_is_refused(run: Path, tmp_path: Path) -> None:
     with pytest.raises(InputError, match="^voxel_size: .*give a larger --voxel-size"):
-        export_run(run, tmp_path, "glb", options=ExportOptions(voxel_size=0.0005))
+        export_run(run, tmp_path, "glb-mesh", options=ExportOptions(voxel_size=0.0005))

@@ -22,6 +22,7 @@ MEDIA_TYPES = {
     ".obj": "model/obj",
     ".spz": "application/octet-stream",
     ".splat": "application/octet-stream",
+    ".usdz": "model/vnd.usdz+zip",
 }
 _RANGE = re.compile(r"^bytes=(\d*)-(\d*)$", re.IGNORECASE)
 

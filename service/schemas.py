@@ -250,7 +250,7 @@ class InstancesPublic(BaseModel):
     """SHA-256 of the ``scene_labelled.ply`` whose ``instance_id`` column the ids index."""
 
 
-ExportFormat = Literal["ply", "spz", "splat", "glb", "glb-mesh", "obj"]
+ExportFormat = Literal["ply", "spz", "splat", "glb", "glb-mesh", "obj", "usdz"]
 """Export formats: those of ``dcseg.export.FORMATS`` (a test keeps them equal)."""
 
 

@@ -13,11 +13,11 @@ def register(subparsers: Any) -> None:
 
     parser = subparsers.add_parser(
         "export",
-        help="export a run's objects as PLY, SPZ, .splat, GLB (splats or meshes) or OBJ",
+        help="export a run's objects as PLY, SPZ, .splat, GLB (splats or meshes), OBJ or USDZ",
         description="Write RUN's objects into OUT: one file per object (and scene-wide files "
         "when no --instance is given), instances.<format>.json with each object's record and "
         "file, and frame.json (world axes, up axis, the turn to glTF's Y-up). Meshes (glb-mesh, "
-        "obj) are fused from the depth the run keeps in state/, or from --capture.",
+        "obj, usdz) are fused from the depth the run keeps in state/, or from --capture.",
     )
     parser.add_argument("run_dir", type=Path, metavar="RUN", help="a finished run folder")
     parser.add_argument("--format", required=True, choices=FORMATS, dest="fmt")

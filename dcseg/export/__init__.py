@@ -57,6 +57,7 @@ _WRITERS = {
     "glb": "dcseg.export.gaussians:write_glb_splats",
     "glb-mesh": "dcseg.export.meshes:write_meshes",
     "obj": "dcseg.export.meshes:write_meshes",
+    "usdz": "dcseg.export.usdz:write_usdz_meshes",
 }
 """Format -> the writer ``module:function`` (imported on use: meshes pull in trimesh, numba)."""
 

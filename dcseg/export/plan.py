@@ -62,7 +62,7 @@ class Written:
         scene: the scene-wide file, if any.
         ranges: ``[offset, count]`` of each object's Gaussians in ``scene`` (key ``"none"``:
             Gaussians of no selected object), for Gaussian formats.
-        nodes: each object's node name in ``scene`` (GLB; objects without a surface have none).
+        nodes: each object's node (GLB) or prim (USDZ) name; meshes: none without a surface.
         labels: the per-Gaussian label sidecar of ``scene`` (PLY: file, columns), if any.
     """
 

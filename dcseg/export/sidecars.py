@@ -18,6 +18,7 @@ APPLIED_IN = (
     "glb: scene.glb and instance_<k>.glb (baked into positions, rotations and SH)",
     "glb-mesh: scene_mesh.glb (every node's matrix)",
     "spz: scene.spz and instance_<k>.spz (baked into positions, rotations and SH: SPZ's RUB)",
+    "usdz: scene.usdz and instance_<k>.usdz (baked into the points; the stage is Y-up)",
 )
 """Where ``frame.json``'s matrix is applied (every other file keeps world coordinates)."""
 
@@ -48,7 +49,7 @@ def instance_table(plan: ExportPlan, fmt: str, written: Written) -> dict[str, An
         extra = {"file": written.per_instance.get(k), "rgb": colour}
         if written.ranges:
             extra["gaussians"] = written.ranges.get(str(k))
-        if fmt in ("glb", "glb-mesh"):
+        if fmt in ("glb", "glb-mesh", "usdz"):
             extra["node"] = written.nodes.get(k)
         rows.append({**record, **extra})
     return {

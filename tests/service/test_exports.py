@@ -93,7 +93,8 @@ def test_instance_export_holds_that_object_only(env, log):
     record = client.get(f"/v1/jobs/{job}/instances/3", headers=AUTH_A).json()
     url = record["links"]["exports"]["glb"]
     assert url == f"/v1/jobs/{job}/instances/3/exports/glb"
-    assert set(record["links"]["exports"]) == {"ply", "spz", "splat", "glb", "glb-mesh", "obj"}
+    formats = {"ply", "spz", "splat", "glb", "glb-mesh", "obj", "usdz"}
+    assert set(record["links"]["exports"]) == formats
     body = client.get(url, headers=AUTH_A).json()
     assert body["instance"] == 3 and [f["name"] for f in body["files"]] == ["objects/3.glb"]
     data = client.get(body["files"][0]["url"], headers=AUTH_A)

@@ -128,3 +128,12 @@ def test_mesh_glb_of_one_object_has_its_node(env):
     assert isinstance(scene, trimesh.Scene)
     assert list(scene.geometry) == ["box_1"]  # the object's class and id name its node
     assert "box_1" in scene.graph.nodes_geometry
+
+
+def test_usdz_of_one_object_is_served_as_usdz(env):
+    client, job = env
+    body = _get(client, f"/v1/jobs/{job}/instances/1/exports/usdz")
+    usdz = next(f for f in body["files"] if f["name"].endswith(".usdz"))
+    assert usdz["media_type"] == "model/vnd.usdz+zip"
+    data = client.get(usdz["url"], headers=AUTH_A).content
+    assert data[:2] == b"PK" and b"instance_1.usdc" in data[:200]  # a zip, .usdc root first

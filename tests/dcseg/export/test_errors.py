@@ -20,8 +20,9 @@ from dcseg.export import (
 
 
 def test_unknown_format_names_the_formats(run: Path, tmp_path: Path) -> None:
-    with pytest.raises(UnknownFormatError, match="'usdz'.*ply, spz, splat, glb, glb-mesh, obj"):
-        export_run(run, tmp_path / "out", "usdz")
+    names = "ply, spz, splat, glb, glb-mesh, obj, usdz"
+    with pytest.raises(UnknownFormatError, match=f"'gltf'.*{names}"):
+        export_run(run, tmp_path / "out", "gltf")
     assert not (tmp_path / "out").exists()
 
 
@@ -69,4 +70,4 @@ def test_options_out_of_range_name_the_field(field: str, value: object) -> None:
 
 
 def test_formats_are_the_documented_ones() -> None:
-    assert FORMATS == ("ply", "spz", "splat", "glb", "glb-mesh", "obj")
+    assert FORMATS == ("ply", "spz", "splat", "glb", "glb-mesh", "obj", "usdz")

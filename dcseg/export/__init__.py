@@ -3,10 +3,12 @@ formats, meshes, and the coordinate frame they are in.
 
 ``export_run(run, out, fmt)`` writes into ``out``:
 
-* ``ply``: ``instance_<k>.ply`` per object (3DGS layout, integer columns kept); for a whole-run
-  export also ``scene.ply`` (grouped by object), ``scene_by_instance.ply`` and
+* ``ply``: ``instance_<k>.ply`` per object (the INRIA 3DGS layout, floats only); for a
+  whole-run export also ``scene.ply`` (grouped by object), ``scene.labels.npy`` (its labels),
+  ``scene_labelled.ply`` (integer columns kept), ``scene_by_instance.ply`` and
   ``scene_by_class.ply`` (palette colours in the DC term);
-* ``spz`` / ``splat``: ``instance_<k>.spz|splat`` per object, and ``scene.spz|splat``;
+* ``spz`` / ``splat``: ``instance_<k>.spz|splat`` per object, and ``scene.spz|splat`` (SPZ in
+  its RUB axes);
 * ``glb``: ``instance_<k>.glb`` per object and ``scene.glb``: Gaussians with the Khronos
   ``KHR_gaussian_splatting`` extension, one node per object (name, class, score in the node's
   ``extras``), in glTF's Y-up;
@@ -14,6 +16,7 @@ formats, meshes, and the coordinate frame they are in.
   turned to glTF's Y-up;
 * ``obj``: ``instance_<k>.obj`` per object and ``scene_mesh.ply`` (vertex colours and an
   ``instance_id`` per vertex);
+* ``usdz``: ``instance_<k>.usdz`` per object and ``scene.usdz``: the meshes for AR Quick Look;
 
 and always ``instances.<fmt>.json`` (the objects' records, each with its file, palette colour
 and, for Gaussian scene files, ``[offset, count]``) and ``frame.json`` (see

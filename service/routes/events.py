@@ -38,6 +38,14 @@ KEEPALIVE_S = 15.0
 JOB_EVENT_REF = "#/components/schemas/JobEvent"
 """One event of the stream (``service.schemas.JobEvent``; ``service.openapi`` adds it)."""
 
+EVENT_STREAM = {
+    "schema": {"type": "string", "description": "server-sent events, each a `JobEvent`"},
+    "x-itemSchema": {"$ref": JOB_EVENT_REF},
+}
+"""The stream's OpenAPI media type: the body is text (so generated clients hand it over as a
+string instead of failing to parse it as one JSON object) and each event is a ``JobEvent``,
+named the way OpenAPI 3.2 does (``itemSchema``), as an extension in this 3.1 document."""
+
 
 def draining(app: Starlette) -> asyncio.Event:
     """Set once the server begins shutting down; open event streams then end. The lifespan
@@ -159,7 +167,7 @@ class SlotStreamingResponse(StreamingResponse):
         200: {
             "description": "event stream: each event as `JobEvent` describes it (`event:` "
             "status, progress, log or completed; `id:` its number; `data:` its JSON)",
-            "content": {"text/event-stream": {"schema": {"$ref": JOB_EVENT_REF}}},
+            "content": {"text/event-stream": EVENT_STREAM},
         },
         **problem_responses(401, 404, 422, 429),
     },

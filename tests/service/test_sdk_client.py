@@ -2,8 +2,9 @@
 
 ``openapi-python-client`` (pinned in the dev extra) generates the client into ``tmp_path``;
 the test imports it and, through it only, uploads a capture, creates a job, polls it while
-fake stages run it to the end, lists and downloads its artifacts and reads a problem. So the
-document's operationIds, models, enums and ``Problem`` are what SDK users get.
+fake stages run it to the end, lists and downloads its artifacts, reads its events into the
+generated event models and reads a problem. So the document's operationIds, models, enums and
+``Problem`` are what SDK users get.
 
 Skipped only when the generator is not installed, and never under CI (CI installs the dev
 extras, so a missing generator fails there).
@@ -28,6 +29,7 @@ import pytest
 from service.openapi import DEFAULT_PATH
 from tests.service.conftest import KEY_A, zip_bytes
 from tests.service.live import LiveServer, execute, live, live_overrides, run_stages
+from tests.service.test_openapi_document import sse_events
 
 __all__ = ["live", "live_overrides"]  # fixtures
 
@@ -114,6 +116,18 @@ def run_a_job(models: Any, types: Any, client: Any, scene: Path, live: LiveServe
         client=client, job_id=job.id, name="segment/instances.json"
     )
     assert download.status_code == 200 and download.content == b"[]"
+
+    stream = _api("jobs.stream_job_events").sync_detailed(client=client, job_id=job.id)
+    assert stream.status_code == 200 and isinstance(stream.parsed, str)
+    event_models = {
+        "status": models.StatusEvent,
+        "progress": models.ProgressEvent,
+        "log": models.LogEvent,
+        "completed": models.CompletedEvent,
+    }
+    events = [event_models[e["event"]].from_dict(e) for e in sse_events(stream.parsed)]
+    assert {type(e) for e in events} >= {models.StatusEvent, models.ProgressEvent}
+    assert events[-1].data.status == models.CompletedEventDataStatus.SUCCEEDED
 
     missing = _api("jobs.get_job").sync(client=client, job_id="nope")
     assert isinstance(missing, models.Problem), missing

@@ -137,6 +137,8 @@ def _cap(low: int, high: int, word: str) -> Any:
     def check(value: Any) -> int | str | None:
         if value is None or value == word:
             return value  # type: ignore[no-any-return]
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)  # 196.0 is an integer in JSON Schema, as the schema says
         if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
             raise ValueError(f"must be an integer in [{low}, {high}] or {word!r}, got {value!r}")
         return value

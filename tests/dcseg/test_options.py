@@ -184,6 +184,7 @@ def test_budget_defaults_are_the_preset_and_words_lift_the_caps(name):
         ("max_side", 10**6),
         ("max_side", "big"),
         ("max_side", True),
+        ("max_side", 196.5),
         ("max_keyframes", 0),
         ("max_keyframes", "none"),
         ("min_translation", -1.0),
@@ -194,6 +195,14 @@ def test_budget_out_of_bounds_is_named(field, value):
     with pytest.raises(InputError) as caught:
         parse_options({"budget": {field: value}})
     assert [p.path for p in caught.value.problems] == [f"options.budget.{field}"]
+
+
+def test_a_whole_float_is_an_integer_as_in_json_schema():
+    """The schema says ``integer``; JSON Schema counts 196.0 as one (found by the fuzzer)."""
+    options = parse_options({"budget": {"max_side": 196.0, "max_keyframes": 7.0}})
+    budget = build_config("fast", options).pipeline.budget
+    assert (budget.max_side, budget.max_keyframes) == (196, 7)
+    assert isinstance(budget.max_side, int)
 
 
 def test_budget_travels_in_the_pipeline_config():

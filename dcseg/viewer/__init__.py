@@ -45,13 +45,15 @@ class ViewerFiles:
 
 @dataclass(frozen=True)
 class ViewerConfig:
-    """What the page needs to know: a title, the data URLs, where its static files are and
-    the world's up axis (``+z`` for dcseg's synthetic scenes and ScanNet)."""
+    """What the page needs to know: a title, the data URLs, where its static files are, the
+    URL of the run's ``frame.json`` (its up axis sets the camera's; None = none served) and the
+    up axis used when no frame states one (``+z``: dcseg's synthetic scenes and ScanNet)."""
 
     title: str
     files: ViewerFiles
     static: str
     up: str = "+z"
+    frame: str | None = None
 
 
 def bundle() -> Path:

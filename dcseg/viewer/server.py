@@ -1,7 +1,8 @@
 """``dcseg view``: serve the viewer page and one run's files on a loopback port.
 
-Only a fixed set of paths answers: ``/`` (the page), ``/static/<file>`` (:data:`STATIC_FILES`)
-and ``/run/<file>`` (:data:`RUN_FILES`); nothing else of the disk is reachable.
+Only a fixed set of paths answers: ``/`` (the page), ``/static/<file>`` (:data:`STATIC_FILES`),
+``/run/<file>`` (:data:`RUN_FILES`) and ``/run/frame.json`` (the run's axes,
+:func:`dcseg.viewer.frame.frame_json`); nothing else of the disk is reachable.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from dcseg.viewer import (
     render_page,
     static_file,
 )
+from dcseg.viewer.frame import FRAME_FILE, frame_json
 
 log = logging.getLogger(__name__)
 
@@ -48,12 +50,15 @@ def check_run(run: Path) -> None:
 
 def page_config(run: Path) -> ViewerConfig:
     files = ViewerFiles(*(f"run/{name}" for name in RUN_FILES))
-    return ViewerConfig(title=run.resolve().name, files=files, static="static")
+    return ViewerConfig(
+        title=run.resolve().name, files=files, static="static", frame=f"run/{FRAME_FILE}"
+    )
 
 
 class _Handler(BaseHTTPRequestHandler):
     run: Path  # set on the subclass made by make_server
     page: bytes
+    frame: bytes
 
     def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
         self._answer(body=True)
@@ -65,6 +70,9 @@ class _Handler(BaseHTTPRequestHandler):
         path = self.path.split("?", 1)[0]
         if path in ("/", "/index.html"):
             self._send(self.page, "text/html; charset=utf-8", body, page=True)
+            return
+        if path == f"/run/{FRAME_FILE}":  # derived once, when the server was made
+            self._send(self.frame, "application/json", body)
             return
         found = self._file(path)
         if found is None:
@@ -101,7 +109,8 @@ def make_server(run: Path, port: int = 0, host: str = "127.0.0.1") -> ThreadingH
     """A server (not yet serving) of ``run`` on ``host:port`` (0 = a free port)."""
     check_run(run)
     page = render_page(page_config(run)).encode("utf-8")
-    handler = type("RunHandler", (_Handler,), {"run": run, "page": page})
+    attributes = {"run": run, "page": page, "frame": frame_json(run)}
+    handler = type("RunHandler", (_Handler,), attributes)
     return ThreadingHTTPServer((host, port), handler)
 
 

@@ -9,10 +9,22 @@ const UP = {
   "+z": [0, 0, 1], "-z": [0, 0, -1],
 };
 
-export function upVector(name) {
-  const up = UP[name];
-  if (!up) throw new Error(`unknown up axis '${name}' (one of ${Object.keys(UP).join(", ")})`);
-  return new THREE.Vector3(...up);
+/** The unit vector of an up axis: a name ("+z", ...) or a vector [x, y, z]. */
+export function upVector(up) {
+  if (Array.isArray(up)) return new THREE.Vector3(...up).normalize();
+  const axis = UP[up];
+  if (!axis) throw new Error(`unknown up axis '${up}' (one of ${Object.keys(UP).join(", ")})`);
+  return new THREE.Vector3(...axis);
+}
+
+/** The up axis a run's frame.json states: its world axis name ("up_axis") when the estimate
+ * snapped to one, else its estimated up vector ("up"), else null (a run without poses). */
+export function frameUp(frame) {
+  const world = frame?.world ?? {};
+  if (typeof world.up_axis === "string" && world.up_axis in UP) return world.up_axis;
+  const up = world.up;
+  const usable = Array.isArray(up) && up.length === 3 && up.every(Number.isFinite);
+  return usable && Math.hypot(...up) > 1e-6 ? up : null;
 }
 
 /** Place `camera` above and beside the bounds [min, max], looking at their centre. */

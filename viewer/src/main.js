@@ -5,13 +5,14 @@
 import * as THREE from "three";
 import { SparkRenderer } from "@sparkjsdev/spark";
 import { fetchAll } from "./api.js";
-import { frame, makeControls, upVector } from "./camera.js";
+import { frame, frameUp, makeControls, upVector } from "./camera.js";
 import { subsetPly } from "./ply.js";
 import { applyView, buildSplats, instanceAt, membersOf, readLabelledScene, robustBounds } from "./scene.js";
 import { renderClasses, renderObjects, renderSelection, setStatus, showError } from "./ui.js";
 
 const CLICK_SLOP_PX = 4; // a pointer that moved further was a drag of the camera, not a click
 const FRAMES_AFTER_CHANGE = 8; // frames drawn after a change: Spark sorts and uploads over a few
+const RUN_UP = "run"; // the panel's choice for a frame.json up vector that is no world axis
 
 function readConfig() {
   const node = document.getElementById("dcseg-config");
@@ -40,9 +41,25 @@ function download(bytes, name) {
   setTimeout(() => URL.revokeObjectURL(url), 10_000);
 }
 
+/** The up axis to start with: frame.json's (when served and it states one), else the page's. */
+function initialUp(config, frameBody) {
+  const stated = frameBody === null ? null : frameUp(frameBody);
+  if (stated !== null) return { up: stated, source: "frame.json" };
+  return { up: config.up ?? "+z", source: "default" };
+}
+
+/** Offer frame.json's up vector (not a world axis) in the panel's up-axis choice. */
+function offerRunUp(vector) {
+  const option = document.createElement("option");
+  option.value = RUN_UP;
+  option.textContent = `run (${vector.map((v) => v.toFixed(2)).join(", ")})`;
+  document.getElementById("up").prepend(option);
+}
+
 class Viewer {
-  constructor(config, scene, instances, labels) {
+  constructor(config, scene, instances, labels, frameBody = null) {
     this.config = config;
+    this.frame = frameBody;
     this.scene = scene;
     this.instances = instances;
     this.labels = labels;
@@ -71,7 +88,12 @@ class Viewer {
   start() {
     this.resize();
     new ResizeObserver(() => this.resize()).observe(this.canvas);
-    this.setUp(this.config.up ?? "+z");
+    // The run's up axis (frame.json); the panel's choice overrides it. `upSource` is for tests.
+    const { up, source } = initialUp(this.config, this.frame);
+    this.upSource = source;
+    this.runUp = up;
+    if (Array.isArray(up)) offerRunUp(up);
+    this.setUp(Array.isArray(up) ? RUN_UP : up);
     this.bindPointer();
     this.bindPanel();
     this.refresh();
@@ -91,12 +113,14 @@ class Viewer {
     this.redraw();
   }
 
+  /** Orbit about up axis `name` (a world axis, or RUN_UP for frame.json's up vector). */
   setUp(name) {
+    const up = upVector(name === RUN_UP ? this.runUp : name);
     this.controls.dispose();
-    this.camera.up.copy(upVector(name));
+    this.camera.up.copy(up);
     this.controls = makeControls(this.camera, this.canvas);
     this.controls.addEventListener("change", () => this.redraw());
-    frame(this.camera, this.controls, robustBounds(this.scene), upVector(name));
+    frame(this.camera, this.controls, robustBounds(this.scene), up);
     document.getElementById("up").value = name;
   }
 
@@ -181,12 +205,14 @@ async function main() {
   document.title = `dcseg · ${config.title}`;
   document.getElementById("title").textContent = config.title;
   setStatus("loading…");
-  const responses = await fetchAll(config.files);
-  const [buffer, instances, labels] = await Promise.all([
+  const urls = config.frame ? { ...config.files, frame: config.frame } : config.files;
+  const responses = await fetchAll(urls);
+  const [buffer, instances, labels, frameBody] = await Promise.all([
     responses.scene.arrayBuffer(), responses.instances.json(), responses.labels.json(),
+    responses.frame ? responses.frame.json() : null,
   ]);
   const scene = readLabelledScene(buffer, config.files.scene);
-  const viewer = new Viewer(config, scene, instances.instances, labels.labels);
+  const viewer = new Viewer(config, scene, instances.instances, labels.labels, frameBody);
   viewer.start();
   setStatus(`${scene.n} Gaussians, ${instances.instances.length} objects`);
   return viewer;

@@ -297,6 +297,45 @@ class Settings(BaseSettings):
     """How long an export request waits for the export to be made before answering 202 with
     ``Retry-After`` (the export goes on; ask again)."""
 
+    webhook_secret: SecretStr = SecretStr("")
+    """Key of the webhooks' HMAC-SHA256 signature (``X-Dcseg-Signature``); never shown by
+    ``repr``/logs. Empty (default) = webhooks are off: a job naming a ``callback_url`` answers
+    422."""
+
+    webhook_allow_private: bool = False
+    """Accept callback URLs whose host resolves to a private, loopback, link-local, multicast
+    or reserved address (refused by default: the API must not be a way into its own network).
+    Checked when the job is submitted and again before every delivery."""
+
+    webhook_max_attempts: int = Field(default=8, ge=1)
+    """POSTs of one webhook before it is given up (``failed``); a connection error, a timeout
+    or a non-2xx answer is retried."""
+
+    webhook_backoff_s: float = Field(default=10.0, gt=0)
+    """Wait after a webhook's first failed attempt; it doubles after each further failure."""
+
+    webhook_backoff_max_s: float = Field(default=3600.0, gt=0)
+    """Longest wait between two attempts of a webhook."""
+
+    webhook_timeout_s: float = Field(default=10.0, gt=0)
+    """How long one webhook POST may take (connect plus answer)."""
+
+    webhook_poll_s: float = Field(default=1.0, gt=0)
+    """How often the API's webhook dispatcher looks for due deliveries."""
+
+    webhook_lease_s: float = Field(default=60.0, gt=0)
+    """How long a dispatcher holds the deliveries it claimed: another API process sends them
+    only after this (its holder died). Must exceed :attr:`webhook_timeout_s` (checked)."""
+
+    @model_validator(mode="after")
+    def _webhook_lease_above_timeout(self) -> Settings:
+        if self.webhook_lease_s <= self.webhook_timeout_s:
+            raise ValueError(
+                "DCSEG_WEBHOOK_LEASE_S must exceed DCSEG_WEBHOOK_TIMEOUT_S (a delivery still "
+                "being sent would be sent again by another API process)"
+            )
+        return self
+
     @property
     def db_url(self) -> str:
         """The effective database URL."""

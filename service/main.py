@@ -1,9 +1,10 @@
 """The FastAPI application: ``create_app(settings)``; ``app`` is the default instance.
 
 Nothing touches the database or the disk at import time: the lifespan opens the store, checks
-the schema, loads API keys, sweeps unfinished jobs and starts the local worker it is given, if
-any. The API never imports ``worker``: ``dcseg serve`` (the layer above both) hands it the
-embedded worker (:class:`LocalWorker`) when no broker is configured.
+the schema, loads API keys, sweeps unfinished jobs, starts the webhook dispatcher
+(:mod:`service.webhooks`) and the local worker it is given, if any. The API never imports
+``worker``: ``dcseg serve`` (the layer above both) hands it the embedded worker
+(:class:`LocalWorker`) when no broker is configured.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from service.routes import (
     viewer,
 )
 from service.uploads import remove_expired_uploads
+from service.webhooks import Dispatcher
 
 logger = logging.getLogger(__name__)
 
@@ -238,12 +240,15 @@ def create_app(
         housekeeping = asyncio.create_task(
             housekeep(state.store, current, state.storage), name="housekeeping"
         )
+        webhooks = asyncio.create_task(
+            Dispatcher(state.store, current).run(), name="webhook dispatcher"
+        )
         undo_drain = events.drain_on_signals(app)  # SIGTERM ends open event streams at once
         try:
             yield
         finally:
             app.state.exporter.close()
-            await shut_down([recovery, housekeeping], local, current.shutdown_grace_s)
+            await shut_down([recovery, housekeeping, webhooks], local, current.shutdown_grace_s)
             state.store.close()
             undo_drain()
 

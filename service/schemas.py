@@ -6,7 +6,14 @@ import dataclasses
 from datetime import datetime
 from typing import TYPE_CHECKING, Annotated, Any, Literal, get_type_hints
 
-from pydantic import BaseModel, ConfigDict, Field, RootModel, create_model, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    RootModel,
+    create_model,
+    model_validator,
+)
 
 from dcseg.io.instance_record import InstanceRecord
 from dcseg.options import JobOptions, PresetName
@@ -17,6 +24,12 @@ clients must tolerate values added later."""
 
 TerminalStatus = Literal["succeeded", "failed", "canceled"]
 """The statuses a job never leaves (``jobstore.contract.TERMINAL``)."""
+
+
+_PORT = r"(?:6553[0-5]|655[0-2][0-9]|65[0-4][0-9]{2}|6[0-4][0-9]{3}|[1-5][0-9]{4}|[0-9]{1,4})"
+CALLBACK_URL = rf"^https?://[A-Za-z0-9._-]+(?::{_PORT})?(?:[/?#]\S*)?$"
+"""What a callback URL looks like (in the schema, so clients and fuzzers know): http or https,
+a host name or IPv4 address (IDN hosts in their ``xn--`` form), an optional port, no user."""
 
 
 class JobCreate(BaseModel):
@@ -50,6 +63,13 @@ class JobCreate(BaseModel):
     options: JobOptions = Field(default_factory=JobOptions)
     """Method parameters, each bounded (``dcseg.options``); the same builder as the CLI and the
     worker checks them, so a job the API accepts never fails on its options later."""
+
+    callback_url: str | None = Field(default=None, max_length=2048, pattern=CALLBACK_URL)
+    """An ``http``/``https`` URL (a host name or IPv4 address, no user or password) the job's
+    JSON (as ``GET /v1/jobs/{job_id}``) is POSTed to when the job ends, signed
+    (``X-Dcseg-Signature``, see the service README). A host that does not resolve, or resolves
+    to a private, loopback, link-local, multicast or reserved address, is refused unless the
+    server allows it (``DCSEG_WEBHOOK_ALLOW_PRIVATE``)."""
 
     @model_validator(mode="after")
     def _has_input(self) -> JobCreate:
@@ -91,6 +111,41 @@ class JobPublic(BaseModel):
     updated_at: datetime
     completed_at: datetime | None
     links: JobLinks
+
+
+DeliveryState = Literal["pending", "delivered", "failed"]
+"""A webhook delivery's state (``jobstore.models.WebhookDelivery.state``)."""
+
+
+class WebhookAttemptPublic(BaseModel):
+    attempt: int
+    """1 for the first POST, then 2, 3..."""
+    attempted_at: datetime
+    status_code: int | None
+    """The receiver's HTTP status; None when no answer came (see ``error``)."""
+    error: str | None
+    """Why the attempt failed (connection refused, timeout, a non-2xx status); None on 2xx."""
+
+
+class WebhookDeliveryPublic(BaseModel):
+    id: int
+    url: str
+    job_status: TerminalStatus
+    """The status the job ended with (the body sent is the job as it is at each attempt)."""
+    state: DeliveryState
+    """``pending`` until a 2xx answer (``delivered``) or the last attempt failed."""
+    next_attempt_at: datetime | None
+    """When a pending delivery is tried next; None once it is delivered or failed."""
+    created_at: datetime
+    completed_at: datetime | None
+    attempts: list[WebhookAttemptPublic]
+
+
+class WebhookDeliveriesPublic(BaseModel):
+    """``GET /v1/jobs/{job_id}/webhook-deliveries``: the job's webhooks (at most one per job
+    today: it ends once) and every attempt of each."""
+
+    deliveries: list[WebhookDeliveryPublic]
 
 
 class JobsPublic(BaseModel):

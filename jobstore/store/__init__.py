@@ -11,8 +11,8 @@ One class, :class:`Store`, made of one part per aggregate: the engine and clock
 (:mod:`~jobstore.store.engine`), the schema (:mod:`~jobstore.store.schema`), tenants and keys
 (:mod:`~jobstore.store.tenants`), uploads (:mod:`~jobstore.store.uploads`), events
 (:mod:`~jobstore.store.events`), jobs as the API sees them (:mod:`~jobstore.store.jobs`),
-their leases as the workers hold them (:mod:`~jobstore.store.leases`) and idempotency records
-(:mod:`~jobstore.store.idempotency`).
+their leases as the workers hold them (:mod:`~jobstore.store.leases`), idempotency records
+(:mod:`~jobstore.store.idempotency`) and the webhook outbox (:mod:`~jobstore.store.webhooks`).
 """
 
 from __future__ import annotations
@@ -24,10 +24,13 @@ from jobstore.store.leases import Lease, LeasesMixin
 from jobstore.store.schema import SchemaError, SchemaMixin
 from jobstore.store.tenants import TenantsMixin, hash_key
 from jobstore.store.uploads import UploadInUse, UploadsMixin
+from jobstore.store.webhooks import AttemptOutcome, DeliveryClaim, WebhooksMixin
 
 __all__ = [
+    "AttemptOutcome",
     "Conflict",
     "Cursor",
+    "DeliveryClaim",
     "IdempotencyOutcome",
     "Lease",
     "SchemaError",
@@ -39,5 +42,13 @@ __all__ = [
 ]
 
 
-class Store(SchemaMixin, TenantsMixin, UploadsMixin, JobsMixin, LeasesMixin, IdempotencyMixin):
+class Store(
+    SchemaMixin,
+    TenantsMixin,
+    UploadsMixin,
+    JobsMixin,
+    LeasesMixin,
+    IdempotencyMixin,
+    WebhooksMixin,
+):
     """Job records in a SQL database (SQLite file or PostgreSQL)."""

@@ -1,7 +1,9 @@
 """A job's events: every status change appends its event in the transaction that makes it.
 
 Event numbers (``seq``) increase by one per job and never repeat or skip, because the job's
-row is locked while its event is appended (see :mod:`jobstore.store.engine`).
+row is locked while its event is appended (see :mod:`jobstore.store.engine`). The transaction
+that ends a job with a ``callback_url`` also writes its webhook's outbox row
+(:mod:`jobstore.store.webhooks`).
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from jobstore.models import Event, Job
+from jobstore.models import Event, Job, WebhookDelivery
 from jobstore.store.engine import StoreBase
 
 
@@ -43,6 +45,19 @@ class EventsMixin(StoreBase):
             job.progress = 1.0
         data = {"status": status, "message": job.message, "error": error}
         self._event(s, job, "completed", data)
+        if job.callback_url:  # the webhook's outbox row, in the transaction that ends the job
+            now = job.completed_at
+            s.add(
+                WebhookDelivery(
+                    job_id=job.id,
+                    url=job.callback_url,
+                    job_status=status,
+                    state="pending",
+                    attempts=0,
+                    next_attempt_at=now,
+                    created_at=now,
+                )
+            )
 
     def _event(self, s: Session, job: Job, type_: str, data: dict[str, Any]) -> None:
         job.event_seq += 1

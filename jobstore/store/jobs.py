@@ -5,11 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import datetime
 
-from sqlalchemy import func, select
+from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
 from jobstore.contract import ACTIVE, TERMINAL
-from jobstore.models import Event, Job, Tenant
+from jobstore.models import Event, Job, Tenant, WebhookAttempt, WebhookDelivery
 from jobstore.store.events import EventsMixin
 
 
@@ -111,7 +111,8 @@ class JobsMixin(EventsMixin):
         return job
 
     def delete_job(self, job_id: str, tenant: str) -> Job | None:
-        """Delete a finished job's record and events; Conflict while it is unfinished."""
+        """Delete a finished job's record, events and webhook deliveries; Conflict while it is
+        unfinished."""
         with self.session() as s:
             job = self._lock(s, job_id, tenant)
             if job is None:
@@ -120,5 +121,8 @@ class JobsMixin(EventsMixin):
                 raise Conflict(job, f"job is {job.status}; cancel it and wait until it ends")
             for ev in s.scalars(select(Event).where(Event.job_id == job_id)):
                 s.delete(ev)
+            deliveries = select(WebhookDelivery.id).where(WebhookDelivery.job_id == job_id)
+            s.execute(delete(WebhookAttempt).where(WebhookAttempt.delivery_id.in_(deliveries)))
+            s.execute(delete(WebhookDelivery).where(WebhookDelivery.job_id == job_id))
             s.delete(job)
         return job

@@ -12,7 +12,13 @@ from collections.abc import Callable
 from sqlalchemy import Connection, func, insert, inspect, select
 from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError
 
-from jobstore.models import SCHEMA_VERSION, Base, SchemaVersion
+from jobstore.models import (
+    SCHEMA_VERSION,
+    Base,
+    SchemaVersion,
+    WebhookAttempt,
+    WebhookDelivery,
+)
 from jobstore.store.engine import StoreBase
 
 logger = logging.getLogger(__name__)
@@ -23,7 +29,19 @@ def _add_upload_stored_bytes(conn: Connection) -> None:
     conn.exec_driver_sql("ALTER TABLE uploads ADD COLUMN stored_bytes BIGINT")
 
 
-MIGRATIONS: dict[int, Callable[[Connection], None]] = {2: _add_upload_stored_bytes}
+def _add_webhooks(conn: Connection) -> None:
+    """v3: ``jobs.callback_url`` and the webhook outbox (``webhook_deliveries``,
+    ``webhook_attempts``)."""
+    if "callback_url" not in {c["name"] for c in inspect(conn).get_columns("jobs")}:
+        conn.exec_driver_sql("ALTER TABLE jobs ADD COLUMN callback_url VARCHAR(2048)")
+    tables = [WebhookDelivery.__table__, WebhookAttempt.__table__]
+    Base.metadata.create_all(conn, tables=tables)  # type: ignore[arg-type]
+
+
+MIGRATIONS: dict[int, Callable[[Connection], None]] = {
+    2: _add_upload_stored_bytes,
+    3: _add_webhooks,
+}
 """``MIGRATIONS[v]`` upgrades a version ``v - 1`` schema to version ``v``."""
 
 

@@ -1,9 +1,10 @@
-"""``/v1/jobs``: create (202, idempotent), read (ETag), list (paged), cancel and delete."""
+"""``/v1/jobs``: create (202, idempotent), read (ETag), list (paged), cancel, delete, and the
+job's webhook deliveries."""
 
 from __future__ import annotations
 
 import logging
-from typing import Annotated, Any
+from typing import Annotated, Any, cast
 
 from fastapi import APIRouter, Header, Query, Response
 from fastapi.concurrency import run_in_threadpool
@@ -13,7 +14,7 @@ from sqlalchemy.exc import IntegrityError
 from dcseg.errors import InputError
 from dcseg.options import build_config, check_size
 from jobstore.contract import TERMINAL
-from jobstore.models import Job
+from jobstore.models import Job, WebhookAttempt, WebhookDelivery
 from jobstore.store import Conflict, Cursor, TooManyJobs, new_id
 from service.deps import AppState, StateDep, TenantDep
 from service.exports import remove_cached
@@ -28,7 +29,18 @@ from service.jobs import (
     request_hash,
 )
 from service.problems import ApiProblem, problem_responses
-from service.schemas import JobCreate, JobPublic, JobsPublic, JobStatus
+from service.schemas import (
+    DeliveryState,
+    JobCreate,
+    JobPublic,
+    JobsPublic,
+    JobStatus,
+    TerminalStatus,
+    WebhookAttemptPublic,
+    WebhookDeliveriesPublic,
+    WebhookDeliveryPublic,
+)
+from service.webhooks import url_refusal
 
 logger = logging.getLogger(__name__)
 
@@ -64,6 +76,8 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
     if upload is None:
         raise ApiProblem(404, f"no upload {upload_id!r}", slug="not-found")
     check_options(body, upload.summary)
+    if body.callback_url is not None:
+        check_callback_url(state, body.callback_url)
     config = {"preset": body.preset, "options": body.options.stored()}
     job = Job(
         id=new_id(),
@@ -74,6 +88,7 @@ def _new_job(state: AppState, tenant: str, body: JobCreate) -> Job:
         config=config,
         event_seq=0,
         message="queued",
+        callback_url=body.callback_url,
     )
     return _insert_capped(state, job)
 
@@ -111,6 +126,27 @@ def check_options(body: JobCreate, summary: dict[str, Any]) -> None:
         ) from None
 
 
+def _invalid(path: str, reason: str) -> ApiProblem:
+    """422 naming one body field, in the shape of request validation errors."""
+    return ApiProblem(
+        422,
+        f"1 invalid field(s): body.{path}: {reason}",
+        slug="validation-error",
+        title="Request validation failed",
+        errors=[{"path": f"body.{path}", "reason": reason}],
+    )
+
+
+def check_callback_url(state: AppState, url: str) -> None:
+    """422 naming ``callback_url`` when webhooks are off or its host is not allowed."""
+    settings = state.settings
+    if not settings.webhook_secret.get_secret_value():
+        raise _invalid("callback_url", "webhooks are off on this server (no DCSEG_WEBHOOK_SECRET)")
+    refusal = url_refusal(url, settings.webhook_allow_private)
+    if refusal is not None:
+        raise _invalid("callback_url", refusal)
+
+
 def native_size(summary: dict[str, Any]) -> tuple[int, int] | None:
     """The smallest frame size an upload's validation summary reports (``"WxH"`` strings)."""
     sizes = [
@@ -120,6 +156,11 @@ def native_size(summary: dict[str, Any]) -> tuple[int, int] | None:
     if not sizes:
         return None
     return min(w for w, _ in sizes), min(h for _, h in sizes)
+
+
+def _callback_part(body: JobCreate) -> dict[str, str]:
+    """``callback_url`` as part of the request hash, when given."""
+    return {} if body.callback_url is None else {"callback_url": body.callback_url}
 
 
 def _submit(state: AppState, tenant: str, body: JobCreate) -> JSONResponse:
@@ -155,7 +196,10 @@ def create_job(
     idempotency_key: IdempotencyKeyHeader = None,
 ) -> Response:
     """Queue a pipeline run; poll the job at ``Location`` (or stream its events)."""
-    digest = request_hash(body.model_dump(mode="json"))
+    # without a callback_url the hash is the one keys got before the field existed
+    digest = request_hash(
+        body.model_dump(mode="json", exclude={"callback_url"}) | _callback_part(body)
+    )
     with idempotent(state, tenant, idempotency_key, digest) as request:
         if request.replay is not None:
             return request.replay
@@ -257,3 +301,43 @@ async def delete_job(job_id: str, state: StateDep, tenant: TenantDep) -> Respons
     await run_in_threadpool(state.storage.remove_job, tenant, job_id)
     await run_in_threadpool(remove_cached, state.settings, job_id)
     return Response(status_code=204)
+
+
+def _delivery_public(
+    delivery: WebhookDelivery, attempts: list[WebhookAttempt]
+) -> WebhookDeliveryPublic:
+    return WebhookDeliveryPublic(
+        id=delivery.id,
+        url=delivery.url,
+        job_status=cast(TerminalStatus, delivery.job_status),
+        state=cast(DeliveryState, delivery.state),
+        next_attempt_at=delivery.next_attempt_at if delivery.state == "pending" else None,
+        created_at=delivery.created_at,
+        completed_at=delivery.completed_at,
+        attempts=[
+            WebhookAttemptPublic(
+                attempt=a.attempt,
+                attempted_at=a.attempted_at,
+                status_code=a.status_code,
+                error=a.error,
+            )
+            for a in attempts
+        ],
+    )
+
+
+@router.get(
+    "/{job_id}/webhook-deliveries",
+    response_model=WebhookDeliveriesPublic,
+    responses=problem_responses(401, 404),
+    operation_id="listWebhookDeliveries",
+)
+def list_webhook_deliveries(
+    job_id: str, state: StateDep, tenant: TenantDep
+) -> WebhookDeliveriesPublic:
+    """The job's webhook deliveries (made when a job with a ``callback_url`` ends) and every
+    attempt of each: time, attempt number, the receiver's status code or the error."""
+    if state.store.get_job(job_id, tenant) is None:
+        raise _not_found(job_id)
+    rows = state.store.webhook_deliveries(job_id)
+    return WebhookDeliveriesPublic(deliveries=[_delivery_public(d, a) for d, a in rows])

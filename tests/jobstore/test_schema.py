@@ -22,7 +22,7 @@ def test_schema_v1_gains_uploads_stored_bytes(tmp_path):
             "INSERT INTO uploads (id, tenant_id, sha256, size, content_type, summary, "
             "created_at) VALUES ('u', 't', '', 123, 'application/x-tar', '{}', '2026-01-01')"
         )
-    assert store.init_schema() == SCHEMA_VERSION == 2
+    assert store.init_schema() == SCHEMA_VERSION == 3
     columns = {c["name"] for c in inspect(store.engine).get_columns("uploads")}
     assert "stored_bytes" in columns
     assert store.tenant_storage("t") == (123, [])

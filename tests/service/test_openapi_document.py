@@ -34,6 +34,7 @@ OPERATION_IDS = {
     "getJob",
     "cancelJob",
     "deleteJob",
+    "listWebhookDeliveries",
     "streamJobEvents",
     "listArtifacts",
     "downloadArtifact",

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+import os
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,3 +74,13 @@ class FrameSelection:
         kept = {stem: path for stem, path in entries.items() if stem in self.read}
         logger.debug("%s: reading %d of %d entries", folder, len(kept), len(entries))
         return kept, problems
+
+
+def link_or_copy(src: Path, dst: Path) -> None:
+    """Hard-link ``src`` to ``dst`` (a copy across file systems), replacing ``dst``; run files
+    are never modified in place, so a link is as good as a copy."""
+    dst.unlink(missing_ok=True)
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)

@@ -21,8 +21,6 @@ Version 1 (``offsets`` int64 and float32 weights per view) is still read.
 from __future__ import annotations
 
 import json
-import os
-import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +33,7 @@ from numpy.typing import NDArray
 from dcseg.affinity.data import AffinityResult
 from dcseg.blend import BlendWeights
 from dcseg.errors import InputError
+from dcseg.io.folders import link_or_copy
 from dcseg.io.npz import read_stored
 
 STATE_VERSION = 2
@@ -238,7 +237,7 @@ def save_views(folder: Path, views: Sequence[ViewState]) -> None:
         if view.source is None:
             write_view(target, view.name, view.K, view.c2w, view.blend, view.depth, None, False)
         elif view.source.resolve() != target.resolve():
-            _link_or_copy(view.source, target)
+            link_or_copy(view.source, target)
         meta.append(
             {
                 "name": view.name,
@@ -250,14 +249,6 @@ def save_views(folder: Path, views: Sequence[ViewState]) -> None:
         )
     body = {"version": STATE_VERSION, "views": meta}
     (folder / "views.json").write_text(json.dumps(body) + "\n", encoding="utf-8")
-
-
-def _link_or_copy(src: Path, dst: Path) -> None:
-    dst.unlink(missing_ok=True)
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
 
 
 def load_views(folder: Path, memory: BlendMemory | None = None) -> list[ViewState]:

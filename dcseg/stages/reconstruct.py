@@ -7,13 +7,12 @@ given a scene (:attr:`~dcseg.inputs.RunInputs.scene`) links it (and its poses) i
 
 from __future__ import annotations
 
-import os
-import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dcseg import __version__
 from dcseg.errors import InputError
+from dcseg.io.folders import link_or_copy
 from dcseg.io.jsonfile import write_json
 from dcseg.io.poses import POSES_FILE
 from dcseg.progress import steps
@@ -87,7 +86,7 @@ def _given(run: StageRun, scene: Path, capture: Capture) -> dict[str, Any]:
 
     report: dict[str, Any] = {"scene": str(scene)}
     gaussians = read_gaussians_ply(scene)
-    _link(scene, run.out / SCENE)
+    link_or_copy(scene, run.out / SCENE)
     poses_file = scene.parent / POSES_FILE
     if poses_file.is_file():
         poses = read_poses(poses_file)
@@ -99,7 +98,7 @@ def _given(run: StageRun, scene: Path, capture: Capture) -> dict[str, Any]:
                 "and budget"
             )
             raise InputError.single(str(poses_file), reason)
-        _link(poses_file, run.out / POSES_FILE)
+        link_or_copy(poses_file, run.out / POSES_FILE)
         capture = with_poses(capture, poses)
         report["pose_refinement"] = {"poses_from": str(scene.parent)}
     report["gaussians"] = len(gaussians)
@@ -109,16 +108,6 @@ def _given(run: StageRun, scene: Path, capture: Capture) -> dict[str, Any]:
 
 def _phases(run: StageRun, names: tuple[str, ...]) -> dict[str, float]:
     return {name: run.clock.seconds[name] for name in names if name in run.clock.seconds}
-
-
-def _link(src: Path, dst: Path) -> None:
-    """Hard-link ``src`` to ``dst`` (a copy across file systems); the files are never
-    modified in place."""
-    dst.unlink(missing_ok=True)
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
 
 
 RECONSTRUCT = Stage(

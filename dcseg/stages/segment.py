@@ -12,13 +12,13 @@ can be re-clustered and re-classified again without training.
 
 from __future__ import annotations
 
-import os
 import shutil
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dcseg.errors import InputError
+from dcseg.io.folders import link_or_copy
 from dcseg.io.jsonfile import write_json
 from dcseg.sizes import SceneSize, resolve
 from dcseg.stages.base import Stage, StageResult, StageRun
@@ -146,15 +146,11 @@ def _output_size(saved: SavedRun) -> tuple[int, int] | None:
 def link_tree(src: Path, dst: Path, skip: tuple[str, ...]) -> None:
     """Copy a trained state (hard links where possible: state files are never modified)."""
     shutil.copytree(
-        src, dst, ignore=lambda folder, names: [n for n in names if n in skip], copy_function=_link
+        src,
+        dst,
+        ignore=lambda folder, names: [n for n in names if n in skip],
+        copy_function=lambda s, d: link_or_copy(Path(s), Path(d)),
     )
-
-
-def _link(src: str, dst: str) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
 
 
 SEGMENT = Stage(

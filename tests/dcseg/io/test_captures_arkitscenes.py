@@ -19,7 +19,7 @@ from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from tests.dcseg.io.archived import check_zip_with_options
-from tests.dcseg.io.layouts import RgbdScene, make_scene, mm
+from tests.dcseg.io.layouts import RgbdScene, check_synth_round_trip, make_scene, mm
 
 VIDEO = "41069021"
 T0 = 3052.083
@@ -145,22 +145,4 @@ def test_validate_names_the_layout(tmp_path: Path) -> None:
 
 def test_synth_scene_as_arkitscenes(tmp_path: Path) -> None:
     """A ``dcseg synth`` capture written as ARKitScenes reads back the same."""
-    pytest.importorskip("pybullet")
-    from dcseg.synth import SynthConfig, generate_scene, write_scene
-
-    # what `dcseg synth s --frames 6 --size 64x48` writes
-    write_scene(generate_scene(SynthConfig(seed=0, frames=6, width=64, height=48)), tmp_path / "s")
-    original = read_capture(tmp_path / "s")
-    scene = RgbdScene(
-        [f.rgb for f in original.frames],
-        [f.depth for f in original.frames],
-        [f.c2w for f in original.frames],
-        original.frames[0].intrinsics,
-    )
-    capture = read_capture(write_arkitscenes(scene, tmp_path / "arkit"))
-    assert len(capture) == 6
-    for frame, before in zip(capture.frames, original.frames, strict=True):
-        np.testing.assert_array_equal(frame.rgb, before.rgb)
-        np.testing.assert_allclose(frame.depth, before.depth, atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, before.c2w, atol=1e-9)
-        assert frame.intrinsics == before.intrinsics
+    check_synth_round_trip(tmp_path, write_arkitscenes, pose_atol=1e-9)

@@ -19,7 +19,7 @@ from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from dcseg.types import Intrinsics
 from tests.dcseg.io.archived import check_zip_with_options
-from tests.dcseg.io.layouts import RgbdScene, make_scene, mm
+from tests.dcseg.io.layouts import RgbdScene, capture_scene, make_scene, mm, synth_capture
 
 MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "OPENCV": 4, "FOV": 7}
 Cameras = dict[int, tuple[str, int, int, list[float]]]
@@ -299,16 +299,5 @@ def test_validate_names_the_layout(tmp_path: Path) -> None:
 
 def test_synth_scene_as_colmap(tmp_path: Path) -> None:
     """A ``dcseg synth`` capture written as a binary COLMAP model reads back the same."""
-    pytest.importorskip("pybullet")
-    from dcseg.synth import SynthConfig, generate_scene, write_scene
-
-    # what `dcseg synth s --frames 6 --size 64x48` writes
-    write_scene(generate_scene(SynthConfig(seed=0, frames=6, width=64, height=48)), tmp_path / "s")
-    original = read_capture(tmp_path / "s")
-    scene = RgbdScene(
-        [f.rgb for f in original.frames],
-        [f.depth for f in original.frames],
-        [f.c2w for f in original.frames],
-        original.frames[0].intrinsics,
-    )
+    scene = capture_scene(synth_capture(tmp_path / "s"))
     check_round_trip(scene, write_colmap(scene, tmp_path / "colmap"))

@@ -14,7 +14,7 @@ import pytest
 from dcseg.errors import InputError
 from dcseg.io.captures import read_capture
 from dcseg.io.captures.colmap_scale import MIN_POINTS
-from tests.dcseg.io.layouts import RgbdScene, make_scene
+from tests.dcseg.io.layouts import RgbdScene, capture_scene, make_scene, synth_capture
 from tests.dcseg.io.test_captures_colmap import world_to_camera, write_colmap
 
 Observation = tuple[float, float, int]
@@ -118,18 +118,8 @@ def test_truncated_points_file(tmp_path: Path) -> None:
 def test_synth_scene_with_sparse_points(tmp_path: Path) -> None:
     """A ``dcseg synth`` capture as a COLMAP model with sparse points: read at its own scale,
     refused at another."""
-    pytest.importorskip("pybullet")
-    from dcseg.synth import SynthConfig, generate_scene, write_scene
-
-    # what `dcseg synth s --frames 6 --size 64x48` writes
-    write_scene(generate_scene(SynthConfig(seed=0, frames=6, width=64, height=48)), tmp_path / "s")
-    original = read_capture(tmp_path / "s")
-    scene = RgbdScene(
-        [f.rgb for f in original.frames],
-        [f.depth for f in original.frames],
-        [f.c2w for f in original.frames],
-        original.frames[0].intrinsics,
-    )
+    original = synth_capture(tmp_path / "s")
+    scene = capture_scene(original)
     capture = read_capture(write_model(scene, tmp_path / "metric", 1.0, True))
     for frame, before in zip(capture.frames, original.frames, strict=True):
         np.testing.assert_allclose(frame.c2w, before.c2w, atol=1e-9)

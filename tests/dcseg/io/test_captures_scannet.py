@@ -12,7 +12,13 @@ from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
-from tests.dcseg.io.layouts import RgbdScene, make_scene, write_scannet
+from tests.dcseg.io.layouts import (
+    RgbdScene,
+    assert_same_frames,
+    make_scene,
+    scene_capture,
+    write_scannet,
+)
 
 
 def test_smoke(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
@@ -21,11 +27,8 @@ def test_smoke(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     capture = read_capture(root)
     assert capture.layout == "scannet"
     assert capture.names == ("0", "1", "2", "3")
+    assert_same_frames(capture.frames, scene_capture(rgbd_scene).frames, pose_atol=1e-12)
     for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, rgbd_scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, rgbd_scene.depth[i], atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, rgbd_scene.c2w[i], atol=1e-12)
-        assert frame.intrinsics == rgbd_scene.k
         assert frame.files == {
             "rgb": f"color/{i}.png",
             "depth": f"depth/{i}.png",

@@ -5,9 +5,9 @@ frames (``iphone/rgb/frame_NNNNNN.jpg``, ``iphone/depth/frame_NNNNNN.png``) next
 from __future__ import annotations
 
 import json
+from functools import partial
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from dcseg.cli.validate import format_report
@@ -17,7 +17,14 @@ from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from tests.dcseg.io.archived import check_zip_with_options
-from tests.dcseg.io.layouts import RgbdScene, make_scene, mm
+from tests.dcseg.io.layouts import (
+    RgbdScene,
+    assert_same_frames,
+    check_synth_round_trip,
+    make_scene,
+    mm,
+    scene_capture,
+)
 
 
 def write_scannetpp(scene: RgbdScene, root: Path, every: int = 10, half_depth: bool = True) -> Path:
@@ -48,11 +55,7 @@ def test_round_trip(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     capture = read_capture(root)
     assert capture.layout == "scannetpp"
     assert capture.names == ("frame_000000", "frame_000010", "frame_000020", "frame_000030")
-    for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, rgbd_scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, rgbd_scene.depth[i], atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, rgbd_scene.c2w[i], atol=1e-12)
-        assert frame.intrinsics == rgbd_scene.k
+    assert_same_frames(capture.frames, scene_capture(rgbd_scene).frames, pose_atol=1e-12)
     assert capture.frames[1].files["pose"] == (
         "iphone/pose_intrinsic_imu.json:frame_000010.aligned_pose"
     )
@@ -115,22 +118,4 @@ def test_validate_names_the_layout(tmp_path: Path) -> None:
 
 def test_synth_scene_as_scannetpp(tmp_path: Path) -> None:
     """A ``dcseg synth`` capture written as ScanNet++ iPhone reads back the same."""
-    pytest.importorskip("pybullet")
-    from dcseg.synth import SynthConfig, generate_scene, write_scene
-
-    # what `dcseg synth s --frames 6 --size 64x48` writes
-    write_scene(generate_scene(SynthConfig(seed=0, frames=6, width=64, height=48)), tmp_path / "s")
-    original = read_capture(tmp_path / "s")
-    scene = RgbdScene(
-        [f.rgb for f in original.frames],
-        [f.depth for f in original.frames],
-        [f.c2w for f in original.frames],
-        original.frames[0].intrinsics,
-    )
-    capture = read_capture(write_scannetpp(scene, tmp_path / "pp", half_depth=False))
-    assert len(capture) == 6
-    for frame, before in zip(capture.frames, original.frames, strict=True):
-        np.testing.assert_array_equal(frame.rgb, before.rgb)
-        np.testing.assert_allclose(frame.depth, before.depth, atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, before.c2w, atol=1e-12)
-        assert frame.intrinsics == before.intrinsics
+    check_synth_round_trip(tmp_path, partial(write_scannetpp, half_depth=False), pose_atol=1e-12)

@@ -19,7 +19,7 @@ from dcseg.io.captures import detect_layout, read_capture, tum
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from tests.dcseg.io.archived import check_zip_with_options
-from tests.dcseg.io.layouts import RgbdScene, make_scene
+from tests.dcseg.io.layouts import RgbdScene, assert_same_frames, make_scene, synth_capture
 
 OPTIONS = CaptureOptions(intrinsics=(20.0, 22.0, 7.5, 5.5))
 T0 = 1305031102.175304
@@ -230,12 +230,7 @@ def test_validate_names_the_layout(tmp_path: Path) -> None:
 
 def test_synth_scene_as_tum(tmp_path: Path) -> None:
     """A ``dcseg synth`` capture written as TUM reads back with its poses, intrinsics, depth."""
-    pytest.importorskip("pybullet")
-    from dcseg.synth import SynthConfig, generate_scene, write_scene
-
-    # what `dcseg synth s --frames 6 --size 64x48` writes
-    write_scene(generate_scene(SynthConfig(seed=0, frames=6, width=64, height=48)), tmp_path / "s")
-    original = read_capture(tmp_path / "s")
+    original = synth_capture(tmp_path / "s")
     scene = RgbdScene(
         [f.rgb for f in original.frames],
         [
@@ -249,8 +244,5 @@ def test_synth_scene_as_tum(tmp_path: Path) -> None:
     k = scene.k
     capture = read_capture(root, CaptureOptions(intrinsics=(k.fx, k.fy, k.cx, k.cy)))
     assert len(capture) == 6
-    for frame, before in zip(capture.frames, original.frames, strict=True):
-        np.testing.assert_array_equal(frame.rgb, before.rgb)
-        np.testing.assert_allclose(frame.depth, before.depth, atol=0.5 / tum.DEPTH_SCALE + 1e-6)
-        np.testing.assert_allclose(frame.c2w, before.c2w, atol=1e-9)
-        assert frame.intrinsics == before.intrinsics
+    depth_atol = 0.5 / tum.DEPTH_SCALE + 1e-6
+    assert_same_frames(capture.frames, original.frames, pose_atol=1e-9, depth_atol=depth_atol)

@@ -18,12 +18,25 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
-from dcseg.client.errors import ApiError, JobFailed, checked, unreachable
+from dcseg.client.downloads import range_start
+from dcseg.client.errors import ApiError, checked, unreachable
 from dcseg.client.events import Cursor, EventParser, ServerEvent
-from dcseg.client.files import ARCHIVE_TYPES, ready_target, sha256_of, verified
-from dcseg.client.retry import RetryPolicy, never_sent, replayable, retry_after
+from dcseg.client.files import ready_target, sha256_of, verified
+from dcseg.client.retry import RetryPolicy, replayable
 from dcseg.client.selection import choose
-from dcseg.client.sync import TERMINAL
+from dcseg.client.shared import (
+    TERMINAL,
+    auth_headers,
+    finished,
+    job_body,
+    key_headers,
+    poll_delay,
+    range_request,
+    stream_headers,
+    transport_wait,
+    upload_headers,
+    waited,
+)
 
 if TYPE_CHECKING:
     import httpx
@@ -56,7 +69,7 @@ class AsyncClient:
     ) -> None:
         import httpx
 
-        headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
+        headers = auth_headers(api_key)
         self.retry = retry or RetryPolicy()
         self._sleep = sleep
         self._http = httpx.AsyncClient(
@@ -75,7 +88,7 @@ class AsyncClient:
         await self._http.aclose()
 
     def _wait(self, attempt: int, started: float, header: str | None = None) -> float | None:
-        return self.retry.delay(attempt, time.monotonic() - started, retry_after(header))
+        return waited(self.retry, attempt, started, header)
 
     async def _request(
         self,
@@ -99,7 +112,7 @@ class AsyncClient:
                     method, url, content=content, headers=headers, **kwargs
                 )
             except httpx.TransportError as error:
-                wait = self._wait(attempt, started) if retried or never_sent(error) else None
+                wait = transport_wait(self.retry, retried, error, attempt, started)
                 if wait is None:
                     where = self._http.base_url.join(url)
                     raise unreachable(where, method, error, attempt, started) from error
@@ -117,12 +130,7 @@ class AsyncClient:
 
     async def upload(self, path: Path, *, idempotency_key: str | None = None) -> dict[str, Any]:
         """Upload a capture archive (.zip, .tar, .tar.gz); see :meth:`Client.upload`."""
-        content_type = ARCHIVE_TYPES.get(path.suffix.lower())
-        if content_type is None:
-            raise ValueError(f"{path}: expected a .zip, .tar or .tar.gz archive")
-        headers = {"Content-Type": content_type}
-        if idempotency_key:
-            headers["Idempotency-Key"] = idempotency_key
+        headers = upload_headers(path, idempotency_key, "a .zip, .tar or .tar.gz archive")
         digest = await asyncio.to_thread(sha256_of, path)
         response = await self._request(
             "POST",
@@ -144,12 +152,8 @@ class AsyncClient:
         idempotency_key: str | None = None,
     ) -> dict[str, Any]:
         """Create a job; see :meth:`Client.submit`."""
-        body: dict[str, Any] = {"preset": preset, "options": options or {}}
-        if upload_id is not None:
-            body["upload_id"] = upload_id
-        if parent_job_id is not None:
-            body["parent_job_id"] = parent_job_id
-        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
+        body = job_body(upload_id, preset, options, parent_job_id)
+        headers = key_headers(idempotency_key)
         return checked(await self._request("POST", "/v1/jobs", json=body, headers=headers))
 
     async def status(self, job_id: str) -> dict[str, Any]:
@@ -164,9 +168,8 @@ class AsyncClient:
             response = await self._request("GET", f"/v1/jobs/{job_id}")
             job = checked(response)
             if job["status"] in TERMINAL:
-                return _finished(job)
-            delay = poll if poll is not None else retry_after(response.headers.get("Retry-After"))
-            delay = 2.0 if delay is None else delay
+                return finished(job)
+            delay = poll_delay(response, poll)
             if time.monotonic() + delay > deadline:
                 raise TimeoutError(f"job {job_id} still {job['status']} after {timeout} s")
             await self._sleep(delay)
@@ -196,7 +199,7 @@ class AsyncClient:
             if done is None:
                 break
             if done:
-                return _finished(await self.status(job_id))
+                return finished(await self.status(job_id))
             if time.monotonic() >= deadline:
                 raise TimeoutError(f"job {job_id} still running after {timeout} s")
             started, attempt = time.monotonic(), 0
@@ -206,7 +209,7 @@ class AsyncClient:
     async def _read_stream(
         self, job_id: str, cursor: Cursor, on_event: EventHandler | None, deadline: float
     ) -> bool | None:
-        headers = {"Last-Event-ID": str(cursor.last), "Accept": "text/event-stream"}
+        headers = stream_headers(cursor)
         url = f"/v1/jobs/{job_id}/events"
         async with self._http.stream("GET", url, headers=headers) as response:
             kind = response.headers.get("content-type", "")
@@ -284,16 +287,10 @@ class AsyncClient:
 
     async def _try(self, item: dict[str, Any], partial: Path) -> httpx.Response | None:
         """One try: None when the file was received to its end, the answer to retry else."""
-        from dcseg.client.downloads import range_start
-
-        have = partial.stat().st_size if partial.is_file() else 0
-        size = item.get("size")
-        if size is not None and have > size:
-            partial.unlink()
-            have = 0
-        if size is not None and have == size:
+        request = range_request(item, partial)
+        if request is None:
             return None
-        headers = {"Range": f"bytes={have}-", "If-Range": f'"{item["sha256"]}"'} if have else {}
+        have, headers = request
         async with self._http.stream("GET", item["url"], headers=headers) as response:
             if response.status_code in self.retry.statuses:
                 await response.aread()
@@ -306,9 +303,3 @@ class AsyncClient:
                 async for chunk in response.aiter_bytes():
                     out.write(chunk)
         return None
-
-
-def _finished(job: dict[str, Any]) -> dict[str, Any]:
-    if job["status"] != "succeeded":
-        raise JobFailed(job)
-    return job

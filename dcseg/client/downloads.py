@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dcseg.client.files import verified
+from dcseg.client.shared import range_request
 
 if TYPE_CHECKING:
     import httpx
@@ -47,14 +48,10 @@ def resume(client: Client, item: dict[str, Any], partial: Path) -> None:
 def _try(client: Client, item: dict[str, Any], partial: Path) -> httpx.Response | None:
     """One try of :func:`resume`: None when the file was received to its end, the
     (read) answer when its status is worth retrying."""
-    have = partial.stat().st_size if partial.is_file() else 0
-    size = item.get("size")
-    if size is not None and have > size:
-        partial.unlink()
-        have = 0
-    if size is not None and have == size:
+    request = range_request(item, partial)
+    if request is None:
         return None
-    headers = {"Range": f"bytes={have}-", "If-Range": f'"{item["sha256"]}"'} if have else {}
+    have, headers = request
     with client._http.stream("GET", item["url"], headers=headers) as response:
         if response.status_code in client.retry.statuses:
             response.read()

@@ -17,26 +17,35 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from dcseg.client.downloads import fetch_presigned, resume
-from dcseg.client.errors import ApiError, JobFailed, NetworkError, checked, unreachable
+from dcseg.client.errors import ApiError, NetworkError, checked, unreachable
 from dcseg.client.events import Cursor, ServerEvent, parse_events
 from dcseg.client.files import (
-    ARCHIVE_TYPES,
     file_chunks,
     pack_folder,
     ready_target,
     sha256_of,
     verified,
 )
-from dcseg.client.retry import RetryPolicy, never_sent, replayable, retry_after
+from dcseg.client.retry import RetryPolicy, replayable
 from dcseg.client.selection import choose, select
+from dcseg.client.shared import (
+    TERMINAL,
+    auth_headers,
+    export_url,
+    finished,
+    job_body,
+    key_headers,
+    poll_delay,
+    stream_headers,
+    transport_wait,
+    upload_headers,
+    waited,
+)
 
 if TYPE_CHECKING:  # imported where used: the CLI's argument parser imports this module
     import httpx
 
 __all__ = ["Client", "TERMINAL"]
-
-TERMINAL = frozenset({"succeeded", "failed", "canceled"})
-"""Job statuses that never change again."""
 
 EventHandler = Callable[[ServerEvent], None]
 
@@ -66,7 +75,7 @@ class Client:
     ) -> None:
         import httpx
 
-        headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
+        headers = auth_headers(api_key)
         self.retry = retry or RetryPolicy()
         self._sleep = sleep
         self._http = httpx.Client(
@@ -109,7 +118,7 @@ class Client:
                     method, url, content=content, headers=headers, **kwargs
                 )
             except httpx.TransportError as error:
-                wait = self._wait(attempt, started) if retried or never_sent(error) else None
+                wait = transport_wait(self.retry, retried, error, attempt, started)
                 if wait is None:
                     raise self._unreachable(method, url, error, attempt, started) from error
                 self._sleep(wait)
@@ -122,7 +131,7 @@ class Client:
             return response
 
     def _wait(self, attempt: int, started: float, header: str | None = None) -> float | None:
-        return self.retry.delay(attempt, time.monotonic() - started, retry_after(header))
+        return waited(self.retry, attempt, started, header)
 
     def _unreachable(
         self, method: str, url: str, error: Exception, attempt: int, started: float
@@ -147,12 +156,8 @@ class Client:
             with tempfile.TemporaryDirectory(prefix="dcseg-upload-") as tmp:
                 archive = pack_folder(path, Path(tmp) / f"{path.name or 'capture'}.tar")
                 return self.upload(archive, idempotency_key=idempotency_key)
-        content_type = ARCHIVE_TYPES.get(path.suffix.lower())
-        if content_type is None:
-            raise ValueError(f"{path}: expected a folder or a .zip, .tar or .tar.gz archive")
-        headers = {"Content-Type": content_type}
-        if idempotency_key:
-            headers["Idempotency-Key"] = idempotency_key
+        expected = "a folder or a .zip, .tar or .tar.gz archive"
+        headers = upload_headers(path, idempotency_key, expected)
         response = self._request(
             "POST",
             "/v1/uploads",
@@ -174,12 +179,8 @@ class Client:
     ) -> dict[str, Any]:
         """Create a job; returns its representation (status ``queued``). With
         ``idempotency_key`` a failed try is sent again without creating a second job."""
-        body: dict[str, Any] = {"preset": preset, "options": options or {}}
-        if upload_id is not None:
-            body["upload_id"] = upload_id
-        if parent_job_id is not None:
-            body["parent_job_id"] = parent_job_id
-        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
+        body = job_body(upload_id, preset, options, parent_job_id)
+        headers = key_headers(idempotency_key)
         return self._json(self._request("POST", "/v1/jobs", json=body, headers=headers))
 
     def status(self, job_id: str) -> dict[str, Any]:
@@ -207,9 +208,8 @@ class Client:
             if job["status"] in TERMINAL:
                 if on_event is not None:
                     on_event(ServerEvent("completed", {"status": job["status"]}))
-                return _finished(job)
-            delay = poll if poll is not None else retry_after(response.headers.get("Retry-After"))
-            delay = 2.0 if delay is None else delay
+                return finished(job)
+            delay = poll_delay(response, poll)
             if time.monotonic() + delay > deadline:
                 raise TimeoutError(f"job {job_id} still {job['status']} after {timeout} s")
             self._sleep(delay)
@@ -245,7 +245,7 @@ class Client:
             if done is None:
                 break  # no stream: poll
             if done:
-                return _finished(self.status(job_id))
+                return finished(self.status(job_id))
             if time.monotonic() >= deadline:
                 raise TimeoutError(f"job {job_id} still running after {timeout} s")
             started, attempt = time.monotonic(), 0
@@ -259,7 +259,7 @@ class Client:
         """Read one connection of the event stream from ``cursor.last`` on: True when the
         ``completed`` event came, False when the stream ended before, None when the service
         offers no stream."""
-        headers = {"Last-Event-ID": str(cursor.last), "Accept": "text/event-stream"}
+        headers = stream_headers(cursor)
         with self._http.stream("GET", f"/v1/jobs/{job_id}/events", headers=headers) as response:
             kind = response.headers.get("content-type", "")
             if response.status_code != 200 or not kind.startswith("text/event-stream"):
@@ -345,20 +345,14 @@ class Client:
     ) -> dict[str, Any]:
         """The export of the scene (or of object ``instance``) in ``fmt``, waiting while the
         service makes it (202, honouring ``Retry-After``); TimeoutError after ``timeout`` s."""
-        base = f"/v1/jobs/{job_id}"
-        url = (
-            f"{base}/exports/{fmt}"
-            if instance is None
-            else f"{base}/instances/{instance}/exports/{fmt}"
-        )
+        url = export_url(job_id, fmt, instance)
         deadline = time.monotonic() + timeout
         while True:
             response = self._request("GET", url)
             body = self._json(response)
             if response.status_code != 202:
                 return body
-            delay = poll if poll is not None else retry_after(response.headers.get("Retry-After"))
-            delay = 2.0 if delay is None else delay
+            delay = poll_delay(response, poll)
             if time.monotonic() + delay > deadline:
                 raise TimeoutError(f"the {fmt} export of job {job_id} not ready after {timeout} s")
             self._sleep(delay)
@@ -399,9 +393,3 @@ class Client:
                 raise ApiError(502, {"detail": f"{item['name']}: SHA-256 mismatch"})
         partial.replace(target)
         return target
-
-
-def _finished(job: dict[str, Any]) -> dict[str, Any]:
-    if job["status"] != "succeeded":
-        raise JobFailed(job)
-    return job

@@ -13,7 +13,13 @@ from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.types import Intrinsics
-from tests.dcseg.io.layouts import RgbdScene, make_scene, write_7scenes
+from tests.dcseg.io.layouts import (
+    RgbdScene,
+    assert_same_frames,
+    make_scene,
+    scene_capture,
+    write_7scenes,
+)
 
 OPTIONS = CaptureOptions(intrinsics=(20.0, 22.0, 7.5, 5.5))
 
@@ -23,11 +29,7 @@ def test_smoke_root_files(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     assert detect_layout(root) == "7scenes"
     capture = read_capture(root, OPTIONS)
     assert capture.names == tuple(f"frame-{i:06d}" for i in range(4))
-    for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, rgbd_scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, rgbd_scene.depth[i], atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, rgbd_scene.c2w[i], atol=1e-12)
-        assert frame.intrinsics == rgbd_scene.k
+    assert_same_frames(capture.frames, scene_capture(rgbd_scene).frames, pose_atol=1e-12)
 
 
 def test_sequences_and_invalid_depth(rgbd_scene: RgbdScene, tmp_path: Path) -> None:

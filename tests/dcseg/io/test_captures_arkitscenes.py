@@ -19,7 +19,14 @@ from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from tests.dcseg.io.archived import check_zip_with_options
-from tests.dcseg.io.layouts import RgbdScene, check_synth_round_trip, make_scene, mm
+from tests.dcseg.io.layouts import (
+    RgbdScene,
+    assert_same_frames,
+    check_synth_round_trip,
+    make_scene,
+    mm,
+    scene_capture,
+)
 
 VIDEO = "41069021"
 T0 = 3052.083
@@ -61,11 +68,7 @@ def test_round_trip(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     capture = read_capture(root, CaptureOptions(min_confidence=2))
     assert capture.layout == "arkitscenes"
     assert capture.names == tuple(f"{VIDEO}_{stamp(i)}" for i in range(4))
-    for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, rgbd_scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, rgbd_scene.depth[i], atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, rgbd_scene.c2w[i], atol=1e-9)
-        assert frame.intrinsics == rgbd_scene.k
+    assert_same_frames(capture.frames, scene_capture(rgbd_scene).frames, pose_atol=1e-9)
     assert capture.frames[2].files["pose"] == f"{VIDEO}_frames/lowres_wide.traj:line 3"
     assert capture.frames[2].files["confidence"] == (
         f"{VIDEO}_frames/confidence/{VIDEO}_{stamp(2)}.png"

@@ -19,7 +19,15 @@ from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from dcseg.types import Intrinsics
 from tests.dcseg.io.archived import check_zip_with_options
-from tests.dcseg.io.layouts import RgbdScene, capture_scene, make_scene, mm, synth_capture
+from tests.dcseg.io.layouts import (
+    RgbdScene,
+    assert_same_frames,
+    capture_scene,
+    make_scene,
+    mm,
+    scene_capture,
+    synth_capture,
+)
 
 MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "OPENCV": 4, "FOV": 7}
 Cameras = dict[int, tuple[str, int, int, list[float]]]
@@ -95,11 +103,7 @@ def check_round_trip(scene: RgbdScene, root: Path) -> None:
     capture = read_capture(root)
     assert capture.layout == "colmap"
     assert capture.names == tuple(f"frame_{i}" for i in range(scene.n))
-    for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, scene.depth[i], atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, scene.c2w[i], atol=1e-9)
-        assert frame.intrinsics == scene.k
+    assert_same_frames(capture.frames, scene_capture(scene).frames, pose_atol=1e-9)
 
 
 @pytest.mark.parametrize("binary", [True, False])

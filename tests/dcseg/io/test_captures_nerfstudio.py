@@ -11,7 +11,14 @@ import pytest
 
 from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
-from tests.dcseg.io.layouts import GL, RgbdScene, nerfstudio_doc, write_nerfstudio
+from tests.dcseg.io.layouts import (
+    GL,
+    RgbdScene,
+    assert_same_frames,
+    nerfstudio_doc,
+    scene_capture,
+    write_nerfstudio,
+)
 
 
 def _project_opencv(c2w: np.ndarray, k: np.ndarray, point: np.ndarray) -> np.ndarray:
@@ -32,11 +39,7 @@ def test_smoke(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     assert detect_layout(root) == "nerfstudio"
     capture = read_capture(root)
     assert capture.names == tuple(f"frame_{i:05d}" for i in range(4))
-    for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, rgbd_scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, rgbd_scene.depth[i], atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, rgbd_scene.c2w[i], atol=1e-12)
-        assert frame.intrinsics == rgbd_scene.k
+    assert_same_frames(capture.frames, scene_capture(rgbd_scene).frames, pose_atol=1e-12)
 
 
 def test_pose_conversion_projects_like_opengl(rgbd_scene: RgbdScene, tmp_path: Path) -> None:

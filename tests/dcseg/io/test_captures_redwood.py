@@ -19,7 +19,14 @@ from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from dcseg.types import Intrinsics
 from tests.dcseg.io.archived import check_zip_with_options
-from tests.dcseg.io.layouts import RgbdScene, check_synth_round_trip, make_scene, mm
+from tests.dcseg.io.layouts import (
+    RgbdScene,
+    assert_same_frames,
+    check_synth_round_trip,
+    make_scene,
+    mm,
+    scene_capture,
+)
 
 OPTIONS = CaptureOptions(intrinsics=(20.0, 22.0, 7.5, 5.5))
 
@@ -57,11 +64,7 @@ def test_round_trip(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     capture = read_capture(root)
     assert capture.layout == "redwood"
     assert capture.names == tuple(f"{i:06d}" for i in range(4))
-    for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, rgbd_scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, rgbd_scene.depth[i], atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, rgbd_scene.c2w[i], atol=1e-12)
-        assert frame.intrinsics == rgbd_scene.k
+    assert_same_frames(capture.frames, scene_capture(rgbd_scene).frames, pose_atol=1e-12)
     assert capture.frames[1].files["pose"] == "trajectory.log:line 6"
     assert capture.frames[1].files["intrinsics"] == "camera_intrinsic.json"
 

@@ -12,7 +12,7 @@ from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.types import Intrinsics
-from tests.dcseg.io.layouts import RgbdScene, write_replica
+from tests.dcseg.io.layouts import RgbdScene, assert_same_frames, scene_capture, write_replica
 
 SAMPLE = Path("/work/shared/data/replica_room0_small")
 
@@ -22,11 +22,10 @@ def test_smoke(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     assert detect_layout(root) == "replica"
     capture = read_capture(root)
     assert capture.names == tuple(f"frame{i:06d}" for i in range(4))
+    assert_same_frames(
+        capture.frames, scene_capture(rgbd_scene).frames, pose_atol=1e-12, depth_atol=1e-4
+    )
     for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, rgbd_scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, rgbd_scene.depth[i], atol=1e-4)
-        np.testing.assert_allclose(frame.c2w, rgbd_scene.c2w[i], atol=1e-12)
-        assert frame.intrinsics == rgbd_scene.k
         assert frame.files["pose"] == f"traj.txt:line {i + 1}"
 
 

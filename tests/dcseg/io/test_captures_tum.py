@@ -19,7 +19,13 @@ from dcseg.io.captures import detect_layout, read_capture, tum
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from tests.dcseg.io.archived import check_zip_with_options
-from tests.dcseg.io.layouts import RgbdScene, assert_same_frames, make_scene, synth_capture
+from tests.dcseg.io.layouts import (
+    RgbdScene,
+    assert_same_frames,
+    make_scene,
+    scene_capture,
+    synth_capture,
+)
 
 OPTIONS = CaptureOptions(intrinsics=(20.0, 22.0, 7.5, 5.5))
 T0 = 1305031102.175304
@@ -79,11 +85,7 @@ def test_round_trip(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     assert detect_layout(root) == "tum"
     capture = read_capture(root, OPTIONS)
     assert capture.layout == "tum" and capture.names == tuple(stamps(4))
-    for i, frame in enumerate(capture.frames):
-        np.testing.assert_array_equal(frame.rgb, rgbd_scene.rgb[i])
-        np.testing.assert_allclose(frame.depth, rgbd_scene.depth[i], atol=1e-6)
-        np.testing.assert_allclose(frame.c2w, rgbd_scene.c2w[i], atol=1e-9)
-        assert frame.intrinsics == rgbd_scene.k
+    assert_same_frames(capture.frames, scene_capture(rgbd_scene).frames, pose_atol=1e-9)
     assert capture.frames[1].files["pose"] == "groundtruth.txt:line 5"
     assert capture.frames[1].files["depth"] == f"depth/{float(stamps(4)[1]) + 0.01:.6f}.png"
 

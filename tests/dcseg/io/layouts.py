@@ -15,8 +15,12 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from dcseg.cli.validate import format_report
+from dcseg.config import CaptureOptions
+from dcseg.inputs import RunInputs
 from dcseg.io.captures import read_capture
 from dcseg.io.images import write_image
+from dcseg.io.validate import validate_inputs
 from dcseg.types import Capture, Frame, Intrinsics
 
 GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -93,6 +97,19 @@ def capture_scene(capture: Capture) -> RgbdScene:
         [f.c2w for f in capture.frames],
         capture.frames[0].intrinsics,
     )
+
+
+def check_validate_names_layout(
+    tmp_path: Path,
+    write: Callable[[RgbdScene, Path], Path],
+    layout: str,
+    options: CaptureOptions | None = None,
+) -> None:
+    """``dcseg validate`` on a two-frame scene written by ``write`` passes and names ``layout``."""
+    report = validate_inputs(RunInputs(capture=write(make_scene(n=2), tmp_path)), options)
+    assert report.ok
+    out = format_report(report.summary, [])
+    assert f"layout: {layout}" in out and "frames: 2" in out
 
 
 def check_synth_round_trip(

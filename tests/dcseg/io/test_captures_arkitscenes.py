@@ -11,19 +11,16 @@ import cv2
 import numpy as np
 import pytest
 
-from dcseg.cli.validate import format_report
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
-from dcseg.inputs import RunInputs
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
-from dcseg.io.validate import validate_inputs
 from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import (
     RgbdScene,
     assert_same_frames,
     check_synth_round_trip,
-    make_scene,
+    check_validate_names_layout,
     mm,
     scene_capture,
 )
@@ -139,11 +136,7 @@ def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
 
 
 def test_validate_names_the_layout(tmp_path: Path) -> None:
-    root = write_arkitscenes(make_scene(n=2), tmp_path)
-    report = validate_inputs(RunInputs(capture=root))
-    assert report.ok
-    out = format_report(report.summary, [])
-    assert "layout: arkitscenes" in out and "frames: 2" in out
+    check_validate_names_layout(tmp_path, write_arkitscenes, "arkitscenes")
 
 
 def test_synth_scene_as_arkitscenes(tmp_path: Path) -> None:

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dcseg.cli.validate import format_report
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.inputs import RunInputs
@@ -23,6 +22,7 @@ from tests.dcseg.io.layouts import (
     RgbdScene,
     assert_same_frames,
     capture_scene,
+    check_validate_names_layout,
     make_scene,
     mm,
     scene_capture,
@@ -295,10 +295,7 @@ def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
 
 
 def test_validate_names_the_layout(tmp_path: Path) -> None:
-    root = write_colmap(make_scene(n=2), tmp_path)
-    report = validate_inputs(RunInputs(capture=root), CaptureOptions())
-    assert report.ok
-    assert "layout: colmap" in format_report(report.summary, [])
+    check_validate_names_layout(tmp_path, write_colmap, "colmap", CaptureOptions())
 
 
 def test_synth_scene_as_colmap(tmp_path: Path) -> None:

@@ -10,19 +10,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dcseg.cli.validate import format_report
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
-from dcseg.inputs import RunInputs
 from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.images import write_image
-from dcseg.io.validate import validate_inputs
 from dcseg.types import Intrinsics
 from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import (
     RgbdScene,
     assert_same_frames,
     check_synth_round_trip,
+    check_validate_names_layout,
     make_scene,
     mm,
     scene_capture,
@@ -171,11 +169,7 @@ def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
 
 
 def test_validate_names_the_layout(tmp_path: Path) -> None:
-    root = write_redwood(make_scene(n=2), tmp_path)
-    report = validate_inputs(RunInputs(capture=root))
-    assert report.ok
-    out = format_report(report.summary, [])
-    assert "layout: redwood" in out and "frames: 2" in out
+    check_validate_names_layout(tmp_path, write_redwood, "redwood")
 
 
 def test_synth_scene_as_redwood(tmp_path: Path) -> None:

@@ -183,14 +183,12 @@ def _add(
     pincam = _pincam(folder / "lowres_wide_intrinsics", video, stamp)
     if pincam is None:
         expected = folder / "lowres_wide_intrinsics" / f"{rgb.stem}.pincam"
-        listing.problems.append(missing(expected, root, "intrinsics", rgb))
-        listing.unlisted.append(rgb.stem)
+        listing.unlist(rgb.stem, [missing(expected, root, "intrinsics", rgb)])
         return
     try:
         camera = _camera(pincam, root)
     except InputError as exc:
-        listing.problems.extend(exc.problems)
-        listing.unlisted.append(rgb.stem)
+        listing.unlist(rgb.stem, exc.problems)
         return
     depth = folder / "lowres_depth" / rgb.name
     confidence = folder / "confidence" / rgb.name

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -111,6 +111,11 @@ class Listing:
     problems: list[Problem] = field(default_factory=list)
     resample_depth: bool = False
     unlisted: list[str] = field(default_factory=list)
+
+    def unlist(self, name: str, problems: Iterable[Problem]) -> None:
+        """Frame ``name`` cannot be listed, for ``problems``: both reported together."""
+        self.problems.extend(problems)
+        self.unlisted.append(name)
 
 
 def rel(path: Path, root: Path) -> str:

@@ -79,17 +79,14 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     for rgb in _colour_files(root):
         depth, pose = root / "depth" / f"{rgb.stem}.png", root / "pose" / f"{rgb.stem}.txt"
         if not depth.is_file():
-            listing.problems.append(missing(depth, root, "depth", rgb))
-            listing.unlisted.append(rgb.stem)
+            listing.unlist(rgb.stem, [missing(depth, root, "depth", rgb)])
         if not pose.is_file():
-            listing.problems.append(missing(pose, root, "pose", rgb))
-            listing.unlisted.append(rgb.stem)
+            listing.unlist(rgb.stem, [missing(pose, root, "pose", rgb)])
             continue
         try:
             c2w = read_matrix_txt(pose, root)
         except InputError as exc:
-            listing.problems.extend(exc.problems)
-            listing.unlisted.append(rgb.stem)
+            listing.unlist(rgb.stem, exc.problems)
             continue
         if not np.all(np.isfinite(c2w)):
             skipped.append(rel(pose, root))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from types import TracebackType
+from contextlib import closing
 from typing import Any
 
 STEPS = 1000
@@ -65,14 +65,6 @@ class JobBar:
             self.bar.set_postfix_str(" ".join(str(data["message"]).split()), refresh=False)
         self.bar.refresh()
 
-    def __enter__(self) -> JobBar:
-        return self
-
-    def __exit__(
-        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
-
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
@@ -83,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from dcseg.cli._client import report
     from dcseg.client import ClientError, client_from_args
 
-    with client_from_args(args.url, args.api_key) as client, JobBar(not args.quiet) as bar:
+    with client_from_args(args.url, args.api_key) as client, closing(JobBar(not args.quiet)) as bar:
         try:
             if args.poll:
                 job = client.wait(args.job_id, timeout=args.timeout, on_event=bar)

@@ -19,13 +19,14 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from dcseg.client.downloads import range_start
-from dcseg.client.errors import ApiError, checked, unreachable
+from dcseg.client.errors import ApiError, checked
 from dcseg.client.events import Cursor, EventParser, ServerEvent
 from dcseg.client.files import ready_target, sha256_of, verified
 from dcseg.client.retry import RetryPolicy, replayable
 from dcseg.client.selection import choose
 from dcseg.client.shared import (
     TERMINAL,
+    Tries,
     auth_headers,
     finished,
     job_body,
@@ -33,9 +34,7 @@ from dcseg.client.shared import (
     poll_delay,
     range_request,
     stream_headers,
-    transport_wait,
     upload_headers,
-    waited,
 )
 
 if TYPE_CHECKING:
@@ -87,9 +86,6 @@ class AsyncClient:
     async def aclose(self) -> None:
         await self._http.aclose()
 
-    def _wait(self, attempt: int, started: float, header: str | None = None) -> float | None:
-        return waited(self.retry, attempt, started, header)
-
     async def _request(
         self,
         method: str,
@@ -103,27 +99,20 @@ class AsyncClient:
         import httpx
 
         retried = replayable(method, headers)
-        started, attempt = time.monotonic(), 0
+        tries = Tries(self.retry, method, self._http.base_url.join(url))
         while True:
-            attempt += 1
             try:
                 content = body() if body is not None else None
                 response = await self._http.request(
                     method, url, content=content, headers=headers, **kwargs
                 )
             except httpx.TransportError as error:
-                wait = transport_wait(self.retry, retried, error, attempt, started)
-                if wait is None:
-                    where = self._http.base_url.join(url)
-                    raise unreachable(where, method, error, attempt, started) from error
-                await self._sleep(wait)
+                await self._sleep(tries.dropped(error, retried))
                 continue
-            if retried and response.status_code in self.retry.statuses:
-                wait = self._wait(attempt, started, response.headers.get("Retry-After"))
-                if wait is not None:
-                    await self._sleep(wait)
-                    continue
-            return response
+            wait = tries.answered(response, retried)
+            if wait is None:
+                return response
+            await self._sleep(wait)
 
     async def _get(self, url: str, **kwargs: Any) -> dict[str, Any]:
         return checked(await self._request("GET", url, **kwargs))
@@ -182,16 +171,15 @@ class AsyncClient:
 
         deadline = time.monotonic() + timeout
         cursor = Cursor()
-        started, attempt = time.monotonic(), 0
+        tries = Tries(self.retry)
         while True:
             seen = cursor.last
             try:
                 done = await self._read_stream(job_id, cursor, on_event, deadline)
             except httpx.TransportError:
                 if cursor.last != seen:
-                    started, attempt = time.monotonic(), 0
-                attempt += 1
-                wait = self._wait(attempt, started)
+                    tries.restart()
+                wait = tries.failed()
                 if wait is None:
                     break
                 await self._sleep(wait)
@@ -202,7 +190,7 @@ class AsyncClient:
                 return finished(await self.status(job_id))
             if time.monotonic() >= deadline:
                 raise TimeoutError(f"job {job_id} still running after {timeout} s")
-            started, attempt = time.monotonic(), 0
+            tries.restart()
             await self._sleep(cursor.pause)
         return await self.wait(job_id, timeout=max(0.0, deadline - time.monotonic()))
 
@@ -266,24 +254,16 @@ class AsyncClient:
     async def _resume(self, item: dict[str, Any], partial: Path) -> None:
         import httpx
 
-        started, attempt = time.monotonic(), 0
+        tries = Tries(self.retry, "GET", self._http.base_url.join(item["url"]))
         while True:
-            attempt += 1
             try:
                 refused = await self._try(item, partial)
             except httpx.TransportError as error:
-                wait = self._wait(attempt, started)
-                if wait is None:
-                    where = self._http.base_url.join(item["url"])
-                    raise unreachable(where, "GET", error, attempt, started) from error
-                await self._sleep(wait)
+                await self._sleep(tries.dropped(error))
                 continue
             if refused is None:
                 return
-            wait = self._wait(attempt, started, refused.headers.get("Retry-After"))
-            if wait is None:
-                checked(refused)
-            await self._sleep(wait or 0.0)
+            await self._sleep(tries.refused(refused))
 
     async def _try(self, item: dict[str, Any], partial: Path) -> httpx.Response | None:
         """One try: None when the file was received to its end, the answer to retry else."""

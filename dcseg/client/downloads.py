@@ -4,12 +4,11 @@ ignores ``Range`` (200) restarts the file; presigned object-store URLs are tried
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dcseg.client.files import verified
-from dcseg.client.shared import range_request
+from dcseg.client.shared import Tries, range_request
 
 if TYPE_CHECKING:
     import httpx
@@ -25,24 +24,16 @@ def resume(client: Client, item: dict[str, Any], partial: Path) -> None:
     ignoring ``Range`` (200) restarts the file."""
     import httpx
 
-    started, attempt = time.monotonic(), 0
+    tries = Tries(client.retry, "GET", client._http.base_url.join(item["url"]))
     while True:
-        attempt += 1
         try:
             refused = _try(client, item, partial)
         except httpx.TransportError as error:
-            wait = client._wait(attempt, started)
-            if wait is None:
-                url = item["url"]
-                raise client._unreachable("GET", url, error, attempt, started) from error
-            client._sleep(wait)
+            client._sleep(tries.dropped(error))
             continue
         if refused is None:
             return
-        wait = client._wait(attempt, started, refused.headers.get("Retry-After"))
-        if wait is None:
-            client._json(refused)
-        client._sleep(wait or 0.0)
+        client._sleep(tries.refused(refused))
 
 
 def _try(client: Client, item: dict[str, Any], partial: Path) -> httpx.Response | None:

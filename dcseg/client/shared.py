@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from dcseg.client.errors import JobFailed
+from dcseg.client.errors import JobFailed, checked, unreachable
 from dcseg.client.events import Cursor
 from dcseg.client.files import ARCHIVE_TYPES
 from dcseg.client.retry import RetryPolicy, never_sent, retry_after
@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "TERMINAL",
+    "Tries",
     "auth_headers",
     "export_url",
     "finished",
@@ -120,3 +121,50 @@ def range_request(item: dict[str, Any], partial: Path) -> tuple[int, dict[str, s
         return None
     headers = {"Range": f"bytes={have}-", "If-Range": f'"{item["sha256"]}"'} if have else {}
     return have, headers
+
+
+class Tries:
+    """The tries of one request, download or event stream under a :class:`RetryPolicy`:
+    counts them since a start and decides each wait, so the clients only send and sleep.
+
+    Args:
+        method, where: name the request in the NetworkError raised when giving up.
+    """
+
+    def __init__(self, retry: RetryPolicy, method: str = "GET", where: object = None) -> None:
+        self.retry, self.method, self.where = retry, method, where
+        self.restart()
+
+    def restart(self) -> None:
+        """Count from now again (a stream that delivered events made progress)."""
+        self.started, self.attempt = time.monotonic(), 0
+
+    def failed(self, header: str | None = None) -> float | None:
+        """The wait after one more failed try, honouring a ``Retry-After`` header; None to
+        give up."""
+        self.attempt += 1
+        return waited(self.retry, self.attempt, self.started, header)
+
+    def dropped(self, error: Exception, retried: bool = True) -> float:
+        """The wait after a transport error; raises the NetworkError when giving up. A
+        request not ``retried`` is tried again only when it was never sent."""
+        self.attempt += 1
+        wait = transport_wait(self.retry, retried, error, self.attempt, self.started)
+        if wait is None:
+            raise unreachable(self.where, self.method, error, self.attempt, self.started) from error
+        return wait
+
+    def answered(self, response: httpx.Response, retried: bool) -> float | None:
+        """The wait before sending a ``retried`` request again after ``response`` (a status
+        worth retrying); None to keep the response."""
+        if not retried or response.status_code not in self.retry.statuses:
+            return None
+        return self.failed(response.headers.get("Retry-After"))
+
+    def refused(self, response: httpx.Response) -> float:
+        """The wait after a download's (read) answer worth retrying; raises its ApiError when
+        giving up."""
+        wait = self.failed(response.headers.get("Retry-After"))
+        if wait is None:
+            checked(response)
+        return wait or 0.0

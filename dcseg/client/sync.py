@@ -17,7 +17,7 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from dcseg.client.downloads import fetch_presigned, resume
-from dcseg.client.errors import ApiError, NetworkError, checked, unreachable
+from dcseg.client.errors import ApiError, checked
 from dcseg.client.events import Cursor, ServerEvent, parse_events
 from dcseg.client.files import (
     file_chunks,
@@ -30,6 +30,7 @@ from dcseg.client.retry import RetryPolicy, replayable
 from dcseg.client.selection import choose, select
 from dcseg.client.shared import (
     TERMINAL,
+    Tries,
     auth_headers,
     export_url,
     finished,
@@ -37,9 +38,7 @@ from dcseg.client.shared import (
     key_headers,
     poll_delay,
     stream_headers,
-    transport_wait,
     upload_headers,
-    waited,
 )
 
 if TYPE_CHECKING:  # imported where used: the CLI's argument parser imports this module
@@ -109,34 +108,20 @@ class Client:
         import httpx
 
         retried = replayable(method, headers)
-        started, attempt = time.monotonic(), 0
+        tries = Tries(self.retry, method, self._http.base_url.join(url))
         while True:
-            attempt += 1
             try:
                 content = body() if body is not None else None
                 response = self._http.request(
                     method, url, content=content, headers=headers, **kwargs
                 )
             except httpx.TransportError as error:
-                wait = transport_wait(self.retry, retried, error, attempt, started)
-                if wait is None:
-                    raise self._unreachable(method, url, error, attempt, started) from error
-                self._sleep(wait)
+                self._sleep(tries.dropped(error, retried))
                 continue
-            if retried and response.status_code in self.retry.statuses:
-                wait = self._wait(attempt, started, response.headers.get("Retry-After"))
-                if wait is not None:
-                    self._sleep(wait)
-                    continue
-            return response
-
-    def _wait(self, attempt: int, started: float, header: str | None = None) -> float | None:
-        return waited(self.retry, attempt, started, header)
-
-    def _unreachable(
-        self, method: str, url: str, error: Exception, attempt: int, started: float
-    ) -> NetworkError:
-        return unreachable(self._http.base_url.join(url), method, error, attempt, started)
+            wait = tries.answered(response, retried)
+            if wait is None:
+                return response
+            self._sleep(wait)
 
     def _json(self, response: httpx.Response) -> dict[str, Any]:
         return checked(response)
@@ -228,16 +213,15 @@ class Client:
 
         deadline = time.monotonic() + timeout
         cursor = Cursor()
-        started, attempt = time.monotonic(), 0
+        tries = Tries(self.retry)
         while True:
             seen = cursor.last
             try:
                 done = self._read_stream(job_id, cursor, on_event, deadline)
             except httpx.TransportError:
                 if cursor.last != seen:
-                    started, attempt = time.monotonic(), 0
-                attempt += 1
-                wait = self._wait(attempt, started)
+                    tries.restart()
+                wait = tries.failed()
                 if wait is None:
                     break
                 self._sleep(wait)
@@ -248,7 +232,7 @@ class Client:
                 return finished(self.status(job_id))
             if time.monotonic() >= deadline:
                 raise TimeoutError(f"job {job_id} still running after {timeout} s")
-            started, attempt = time.monotonic(), 0
+            tries.restart()
             self._sleep(cursor.pause)
         remaining = max(0.0, deadline - time.monotonic())
         return self.wait(job_id, timeout=remaining, on_event=on_event)

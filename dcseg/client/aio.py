@@ -20,20 +20,23 @@ from typing import TYPE_CHECKING, Any
 
 from dcseg.client.downloads import range_start
 from dcseg.client.errors import ApiError, checked
-from dcseg.client.events import Cursor, EventParser, ServerEvent
+from dcseg.client.events import Cursor, EventParser
 from dcseg.client.files import ready_target, sha256_of, verified
 from dcseg.client.retry import RetryPolicy, replayable
 from dcseg.client.selection import choose
 from dcseg.client.shared import (
     TERMINAL,
+    EventHandler,
     Tries,
     auth_headers,
     finished,
     job_body,
     key_headers,
+    offers_stream,
     poll_delay,
     range_request,
     stream_headers,
+    stream_step,
     upload_headers,
 )
 
@@ -41,8 +44,6 @@ if TYPE_CHECKING:
     import httpx
 
 __all__ = ["AsyncClient"]
-
-EventHandler = Callable[[ServerEvent], None]
 
 
 async def _chunks(path: Path, size: int = 1 << 20) -> AsyncIterator[bytes]:
@@ -200,8 +201,7 @@ class AsyncClient:
         headers = stream_headers(cursor)
         url = f"/v1/jobs/{job_id}/events"
         async with self._http.stream("GET", url, headers=headers) as response:
-            kind = response.headers.get("content-type", "")
-            if response.status_code != 200 or not kind.startswith("text/event-stream"):
+            if not offers_stream(response):
                 await response.aread()
                 return None
             parser = EventParser()
@@ -209,12 +209,9 @@ class AsyncClient:
                 event = parser.feed(line)
                 if event is None:
                     continue
-                if cursor.take(event) and on_event is not None:
-                    on_event(event)
-                if event.type == "completed":
-                    return True
-                if time.monotonic() >= deadline:
-                    return False
+                done = stream_step(event, cursor, on_event, deadline)
+                if done is not None:
+                    return done
         return False
 
     async def artifacts(self, job_id: str) -> list[dict[str, Any]]:

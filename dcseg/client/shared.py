@@ -5,11 +5,12 @@ client keeps only its transport calls, so the two cannot drift apart."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dcseg.client.errors import JobFailed, checked, unreachable
-from dcseg.client.events import Cursor
+from dcseg.client.events import Cursor, ServerEvent
 from dcseg.client.files import ARCHIVE_TYPES
 from dcseg.client.retry import RetryPolicy, never_sent, retry_after
 
@@ -18,15 +19,18 @@ if TYPE_CHECKING:
 
 __all__ = [
     "TERMINAL",
+    "EventHandler",
     "Tries",
     "auth_headers",
     "export_url",
     "finished",
     "job_body",
     "key_headers",
+    "offers_stream",
     "poll_delay",
     "range_request",
     "stream_headers",
+    "stream_step",
     "transport_wait",
     "upload_headers",
     "waited",
@@ -34,6 +38,8 @@ __all__ = [
 
 TERMINAL = frozenset({"succeeded", "failed", "canceled"})
 """Job statuses that never change again."""
+
+EventHandler = Callable[[ServerEvent], None]
 
 
 def auth_headers(api_key: str | None) -> dict[str, str]:
@@ -77,6 +83,26 @@ def export_url(job_id: str, fmt: str, instance: int | None) -> str:
 def stream_headers(cursor: Cursor) -> dict[str, str]:
     """The event stream's request headers, resuming after the last event seen."""
     return {"Last-Event-ID": str(cursor.last), "Accept": "text/event-stream"}
+
+
+def offers_stream(response: httpx.Response) -> bool:
+    """Whether the answer to the events request is the event stream (else: poll the job)."""
+    kind = response.headers.get("content-type", "")
+    return response.status_code == 200 and kind.startswith("text/event-stream")
+
+
+def stream_step(
+    event: ServerEvent, cursor: Cursor, on_event: EventHandler | None, deadline: float
+) -> bool | None:
+    """Take one streamed event, handing it on when it is new: True when it is the
+    ``completed`` one, False when ``deadline`` (monotonic) has passed, None to read on."""
+    if cursor.take(event) and on_event is not None:
+        on_event(event)
+    if event.type == "completed":
+        return True
+    if time.monotonic() >= deadline:
+        return False
+    return None
 
 
 def finished(job: dict[str, Any]) -> dict[str, Any]:

@@ -30,14 +30,17 @@ from dcseg.client.retry import RetryPolicy, replayable
 from dcseg.client.selection import choose, select
 from dcseg.client.shared import (
     TERMINAL,
+    EventHandler,
     Tries,
     auth_headers,
     export_url,
     finished,
     job_body,
     key_headers,
+    offers_stream,
     poll_delay,
     stream_headers,
+    stream_step,
     upload_headers,
 )
 
@@ -45,8 +48,6 @@ if TYPE_CHECKING:  # imported where used: the CLI's argument parser imports this
     import httpx
 
 __all__ = ["Client", "TERMINAL"]
-
-EventHandler = Callable[[ServerEvent], None]
 
 
 class Client:
@@ -245,17 +246,13 @@ class Client:
         offers no stream."""
         headers = stream_headers(cursor)
         with self._http.stream("GET", f"/v1/jobs/{job_id}/events", headers=headers) as response:
-            kind = response.headers.get("content-type", "")
-            if response.status_code != 200 or not kind.startswith("text/event-stream"):
+            if not offers_stream(response):
                 response.read()
                 return None
             for event in parse_events(response.iter_lines()):
-                if cursor.take(event) and on_event is not None:
-                    on_event(event)
-                if event.type == "completed":
-                    return True
-                if time.monotonic() >= deadline:
-                    return False
+                done = stream_step(event, cursor, on_event, deadline)
+                if done is not None:
+                    return done
         return False
 
     # -- artifacts and exports ------------------------------------------------------------

@@ -6,12 +6,11 @@ centimetres thick and the Gaussians fitted to it sit off the surface. :func:`den
 replaces each valid pixel by the median of the valid pixels in its ``window x window``
 neighbourhood, but only where the two differ by at most ``k`` times the view's own noise level
 at that depth; elsewhere (depth edges, thin structures the median would erase) the pixel keeps
-its value. The noise level is measured, not configured: ``sigma = 1.4826 x median(|d - m| / d^2)``
-over the pixels (of a sparse grid) whose whole window is valid: the median absolute deviation
-of the residual, scaled to a Gaussian's standard deviation, per metre squared. Noise-free or
-quantised depth (rendered captures such as Replica, 16-bit PNG) measures 0 and is returned
-as it is, at the cost of the sparse measurement only; noisy depth loses most of its noise
-(the median of 25 samples has about a fifth of one sample's deviation).
+its value. The noise level ``sigma`` (per metre squared) is measured, not configured, by
+:func:`dcseg.reconstruct.depth_noise.view_noise`: plane fits to the inverse depth, net of the
+quantisation step. Noise-free depth (rendered captures such as Replica) measures 0 and is
+returned as it is, at the cost of the sparse measurement only; noisy depth loses most of its
+noise (the median of 25 samples has about a fifth of one sample's deviation).
 """
 
 from __future__ import annotations
@@ -25,15 +24,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.reconstruct.depth_noise import view_noise
 from dcseg.types import Frame
 
 Array = Any  # numpy arrays; numba cannot see annotations, mypy cannot see numba
-
-MAD_TO_SIGMA = 1.4826
-"""Median absolute deviation -> standard deviation of a normal distribution."""
-
-NOISE_STEP = 4
-"""The noise level is measured on every this-many-th pixel of both axes."""
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -72,26 +66,6 @@ def window_median(depth: Array, radius: int, step: int, offset: int) -> Array:
     return median, full
 
 
-def relative_noise(
-    depth: NDArray[np.float32], median: NDArray[np.float32], full: NDArray[np.bool_]
-) -> float:
-    """The depth noise per metre squared of the pixels ``depth`` whose window medians are
-    ``median`` (see the module docstring); 0.0 when no pixel has a whole valid window."""
-    if not full.any():
-        return 0.0
-    z = depth[full].astype(np.float64)
-    residual = np.abs(z - median[full]) / (z * z)
-    return float(MAD_TO_SIGMA * np.median(residual))
-
-
-def view_noise(depth: NDArray[np.float32], window: int) -> float:
-    """A view's depth noise per metre squared (:func:`relative_noise`), measured on every
-    :data:`NOISE_STEP`-th pixel of both axes: the same value whichever grid is filtered, at
-    ``1 / NOISE_STEP^2`` of a whole-image pass."""
-    median, full = window_median(depth, window // 2, NOISE_STEP, 0)
-    return relative_noise(depth[::NOISE_STEP, ::NOISE_STEP], median, full)
-
-
 def denoise_depth(
     depth: NDArray[np.float32], window: int, k: float, step: int = 1, offset: int = 0
 ) -> NDArray[np.float32]:
@@ -119,7 +93,7 @@ def denoise_depth(
     grid = d[offset::step, offset::step].copy()
     if window == 1:
         return grid
-    sigma = view_noise(d, window)
+    sigma = view_noise(d)
     if sigma == 0.0:  # noise-free (or quantised) depth: nothing to do, and nothing to pay
         return grid
     median, full = window_median(d, window // 2, step, offset)
@@ -145,12 +119,7 @@ class DepthFilter:
         if self.window == 1 or not frames:
             return None
         return float(
-            np.median(
-                [
-                    view_noise(np.ascontiguousarray(f.depth, dtype=np.float32), self.window)
-                    for f in frames
-                ]
-            )
+            np.median([view_noise(np.ascontiguousarray(f.depth, dtype=np.float32)) for f in frames])
         )
 
     def grid(

@@ -13,11 +13,12 @@ from dcseg.reconstruct.views import make_view
 from dcseg.types import Frame, Intrinsics
 
 
-def slanted_wall(h: int = 60, w: int = 80) -> NDArray[np.float32]:
-    """Depth of a plane seen at an angle (1.5-2.5 m) with a box 0.5 m in front of it."""
+def slanted_wall(h: int = 120, w: int = 160) -> NDArray[np.float32]:
+    """Depth of a plane seen at an angle (1.5-2.5 m; a plane is linear in inverse depth) with
+    a box 0.5 m in front of it."""
     u = np.linspace(0.0, 1.0, w)
-    depth = np.tile(1.5 + u, (h, 1))
-    depth[20:40, 30:50] -= 0.5
+    depth = np.tile(1.0 / (1.0 / 1.5 - (1.0 / 1.5 - 1.0 / 2.5) * u), (h, 1))
+    depth[40:80, 60:100] -= 0.5
     return depth.astype(np.float32)
 
 
@@ -41,8 +42,8 @@ def test_z_squared_noise_shrinks_and_edges_stay() -> None:
     after = np.abs(out - clean).mean()
     assert after < 0.4 * before
     # the box edge stays a step: pixels either side keep their own surface
-    assert abs(out[30, 28] - clean[30, 28]) < 0.1
-    assert abs(out[30, 31] - clean[30, 31]) < 0.1
+    assert abs(out[60, 58] - clean[60, 58]) < 0.1
+    assert abs(out[60, 61] - clean[60, 61]) < 0.1
 
 
 def test_invalid_pixels_stay_invalid_and_do_not_vote() -> None:

@@ -90,6 +90,8 @@ def make_settings(root: Path, **overrides: Any) -> Settings:
         "max_upload_bytes": 4 * 2**20,
     }
     values.update(overrides)
+    if values["storage_dir"] is None:  # DCSEG_STORAGE_DIR or the default, as a server reads it
+        del values["storage_dir"]
     # a loaded 2-core CI machine: let SQLite writers wait most of the stale-lease window
     values.setdefault("sqlite_busy_timeout_s", 2.5 * values["heartbeat_s"])
     return Settings(**values)
@@ -98,6 +100,31 @@ def make_settings(root: Path, **overrides: Any) -> Settings:
 @pytest.fixture
 def settings(tmp_path: Path) -> Settings:
     return make_settings(tmp_path)
+
+
+StorageSettings = Callable[..., Settings]
+"""``(**overrides) -> Settings`` of :func:`make_settings` in the storage folder under test."""
+
+
+@pytest.fixture(params=["absolute", "relative"])
+def storage_settings(
+    request: pytest.FixtureRequest, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> StorageSettings:
+    """Settings with the storage folder absolute (``tmp_path/data``) and, as a second run of
+    the test, relative as a server started with ``DCSEG_STORAGE_DIR=dcseg-data`` (or the
+    default ``./dcseg-data``) has it: resolved against the working directory, ``tmp_path``."""
+    if request.param == "relative":
+        monkeypatch.chdir(tmp_path)
+        monkeypatch.setenv("DCSEG_STORAGE_DIR", "dcseg-data")
+
+    def make(**overrides: Any) -> Settings:
+        if request.param == "absolute":
+            return make_settings(tmp_path, **overrides)
+        settings = make_settings(tmp_path, storage_dir=None, **overrides)
+        assert settings.storage_dir == Path("dcseg-data")  # relative, as given
+        return settings
+
+    return make
 
 
 @pytest.fixture

@@ -40,9 +40,11 @@ TINY = {
 }
 
 
-@pytest.fixture
-def serve(tmp_path: Path) -> Iterator[str]:
-    """``dcseg serve`` in a child process, with its default embedded worker; yields its URL."""
+@pytest.fixture(params=["absolute", "relative"])
+def serve(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[str]:
+    """``dcseg serve`` in a child process, with its default embedded worker; yields its URL.
+    Its storage folder is absolute (``DCSEG_STORAGE_DIR``), then the default, the relative
+    ``./dcseg-data``, in ``tmp_path`` (as a user's first ``dcseg serve`` has it)."""
     port = free_port()
     env = {
         **os.environ,
@@ -53,6 +55,8 @@ def serve(tmp_path: Path) -> Iterator[str]:
     }
     env.pop("DCSEG_DATABASE_URL", None)
     env.pop("DCSEG_BROKER_URL", None)
+    if request.param == "relative":
+        env.pop("DCSEG_STORAGE_DIR")
     log = (tmp_path / "serve.log").open("wb")
     command = [
         sys.executable,
@@ -64,7 +68,8 @@ def serve(tmp_path: Path) -> Iterator[str]:
         "--log-level",
         "warning",
     ]
-    process = subprocess.Popen(command, env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+    cwd = tmp_path if request.param == "relative" else REPO
+    process = subprocess.Popen(command, env=env, cwd=cwd, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
 
     def up() -> bool:
@@ -77,6 +82,8 @@ def serve(tmp_path: Path) -> Iterator[str]:
     try:
         wait_for(up, timeout=60, every=0.1)
         yield url
+        if request.param == "relative":  # the jobs were where the default says
+            assert (tmp_path / "dcseg-data" / "jobs").is_dir()
     finally:
         stop_process(process, signal.SIGINT, 20)
         log.close()
@@ -112,12 +119,26 @@ def test_one_command_runs_a_job_end_to_end(serve, scene, tmp_path, capsys):
     instances = json.loads((tmp_path / "out" / "segment" / "instances.json").read_text())
     assert instances["instances"], "the pipeline found no instance"
     with Client(serve, KEY_A) as client:
+        check_exports_and_viewer(client, serve, job_id, tmp_path / "exports")
         upload_id = client.status(job_id)["upload_id"]
         with pytest.raises(ApiError) as refused:  # refused at submission, nothing queued
             client.submit(upload_id, options={"reconstruct": {"no_such_knob": 1}})
     assert refused.value.status == 422
     errors = refused.value.problem["errors"]
     assert errors[0]["path"] == "body.options.reconstruct.no_such_knob"
+
+
+def check_exports_and_viewer(client: Client, url: str, job_id: str, dest: Path) -> None:
+    """The scene's PLY and one object's GLB are made and downloaded (SHA-256 checked); the
+    viewer's frame.json is served (the routes a relative storage folder once broke)."""
+    ply = client.download_export(job_id, "ply", dest / "scene", only=["scene.ply"])
+    assert [p.name for p in ply] == ["scene.ply"] and ply[0].read_bytes().startswith(b"ply")
+    k = client.instances(job_id)[0]["id"]
+    glb = client.download_export(job_id, "glb", dest / "one", instance=k, only=["*.glb"])
+    assert [p.name for p in glb] == [f"instance_{k}.glb"]
+    assert glb[0].read_bytes()[:4] == b"glTF"
+    frame = httpx.get(f"{url}/viewer/{job_id}/frame.json", headers=AUTH_A, timeout=30)
+    assert frame.status_code == 200 and "up_axis" in frame.json()["world"]
 
 
 def test_startup_sweep_requeues_unfinished_jobs(tmp_path, scene_tar):

@@ -9,7 +9,6 @@ import io
 import json
 import struct
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,7 +17,7 @@ from plyfile import PlyData
 
 from service.main import create_app
 from tests.scenes.runs import make_run
-from tests.service.conftest import AUTH_A, TAR, TestClient, assert_problem, make_settings
+from tests.service.conftest import AUTH_A, TAR, StorageSettings, TestClient, assert_problem
 from tests.service.segmented import run_segmented_job
 
 
@@ -28,20 +27,13 @@ def run_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
     return {p.relative_to(run).as_posix(): p.read_bytes() for p in run.rglob("*") if p.is_file()}
 
 
-@pytest.fixture(params=["absolute", "relative"])
+@pytest.fixture
 def env(
-    request: pytest.FixtureRequest,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    scene_tar: bytes,
-    run_files: dict[str, bytes],
+    storage_settings: StorageSettings, scene_tar: bytes, run_files: dict[str, bytes]
 ) -> Iterator[tuple[TestClient, str]]:
     """A segmented job's service, its storage folder given as an absolute path or as the
-    default's relative ``./dcseg-data`` (resolved against the working directory)."""
-    settings = make_settings(tmp_path, export_wait_s=120.0)
-    if request.param == "relative":
-        monkeypatch.chdir(tmp_path)
-        settings = settings.model_copy(update={"storage_dir": Path("dcseg-data")})
+    default's relative ``dcseg-data`` (resolved against the working directory)."""
+    settings = storage_settings(export_wait_s=120.0)
     with TestClient(create_app(settings)) as client:
         upload = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR}).json()
         yield client, run_segmented_job(client, upload["id"], files=run_files)

@@ -3,14 +3,9 @@
 from __future__ import annotations
 
 import json
-import re
 import subprocess
 import sys
-import tomllib
-from collections.abc import Iterable, Iterator
 from pathlib import Path
-
-import pytest
 
 from service.main import app
 from service.openapi import DEFAULT_PATH, render
@@ -73,45 +68,3 @@ def test_not_ready_is_a_problem(client, monkeypatch):
     monkeypatch.setattr(state.store, "ping", broken)
     body = assert_problem(client.get("/readyz"), 503)
     assert body["checks"]["database"].startswith("error")
-
-
-@pytest.mark.parametrize(
-    ("image", "packages"),
-    [("api", {"dcseg", "jobstore", "service"}), ("worker", {"dcseg", "jobstore", "worker"})],
-)
-def test_images_ship_their_layer_and_what_it_imports(image: str, packages: set[str]):
-    """The API image has no ``worker/`` and the worker image no ``service/`` (they never import
-    each other; lint-imports checks it): each copies and lets in exactly its packages."""
-    dockerfile = (REPO / f"docker/{image}.Dockerfile").read_text(encoding="utf-8")
-    ignore = (REPO / f"docker/{image}.Dockerfile.dockerignore").read_text(encoding="utf-8")
-    assert set(re.findall(r"^COPY (\w+) \./\1$", dockerfile, re.M)) == packages
-    assert set(re.findall(r"^!(\w+)/\*\*$", ignore, re.M)) == packages
-
-
-def test_api_image_requirements_cover_the_api_imports():
-    """docker/api-requirements.txt must hold every project dependency the API process loads."""
-
-    def names(lines: Iterable[str]) -> Iterator[str]:
-        for line in lines:
-            line = line.strip().strip('",')
-            if line and not line.startswith("#"):
-                yield re.split(r"[<>=\[ ]", line, maxsplit=1)[0].lower().replace("-", "_")
-
-    import_name = {"opencv_python_headless": "cv2", "scikit_learn": "sklearn", "pymcubes": "mcubes"}
-    requirements = (REPO / "docker/api-requirements.txt").read_text().splitlines()
-    image = {import_name.get(n, n) for n in names(requirements)}
-    pyproject = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["dependencies"]
-    project = {import_name.get(n, n) for n in names(pyproject)}
-    code = (
-        "import sys, service.main, service.uploads, dcseg.io.validate, dcseg.io.archive\n"
-        # the export child runs in the API image too (every format's writer)
-        "import service.export_child, dcseg.export.gaussians, dcseg.export.meshes\n"
-        "assert 'torch' not in sys.modules, 'an API-image import loaded torch'\n"
-        "print(' '.join(sorted({m.split('.')[0] for m in sys.modules})))"
-    )
-    result = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
-    )
-    loaded = set(result.stdout.split()) & project
-    assert loaded, "no project dependency seen: the check is broken"
-    assert loaded <= image, f"the API image lacks {sorted(loaded - image)}"

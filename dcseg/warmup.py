@@ -30,6 +30,8 @@ KERNEL_MODULES = (
     "dcseg.cluster.components",
     "dcseg.export.tsdf",
     "dcseg.reconstruct.depth_filter",
+    "dcseg.reconstruct.depth_noise",
+    "dcseg.reconstruct.flying",
     "dcseg.reconstruct.surface",
     "dcseg.render.cpu_planar",
     "dcseg.render.blend_weights",

@@ -62,6 +62,12 @@ class ReconstructConfig:
     the view's measured noise at that depth. Same views, window 5, k = 3 / 5 / 8: 3.75 /
     3.61 / 3.68 mm (default level), 7.24 / 6.75 / 6.76 mm (heavy)."""
 
+    drop_flying_pixels: bool = True
+    """Drop the flying pixels at depth edges (samples between the two sides of a jump, on no
+    surface: :mod:`dcseg.reconstruct.flying`) from the training frames' depth before
+    initialisation and the depth loss. Held-out frames are scored against the sensor depth as
+    it is. ``reconstruction.json`` reports their share (``sensor.depth.flying_pixels``)."""
+
     # --- camera poses ---
     pose_lr: float = option(0.0, bounds=(0.0, 0.1))
     """Learning rate (radians and metres per step) of a rigid correction per training view

@@ -24,7 +24,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.reconstruct.config import ReconstructConfig
-from dcseg.reconstruct.depth_noise import view_noise
+from dcseg.reconstruct.depth_noise import quantisation_step, view_noise
+from dcseg.reconstruct.flying import drop_flying
 from dcseg.types import Frame
 
 Array = Any  # numpy arrays; numba cannot see annotations, mypy cannot see numba
@@ -104,15 +105,18 @@ def denoise_depth(
 
 @dataclass(frozen=True)
 class DepthFilter:
-    """The filter of :func:`denoise_depth` with its parameters (``window`` 1 = off)."""
+    """The filter of :func:`denoise_depth` with its parameters (``window`` 1 = off), after
+    dropping flying pixels (:func:`dcseg.reconstruct.flying.drop_flying`) when ``flying``."""
 
     window: int = 5
     k: float = 5.0
+    flying: bool = True
 
     @classmethod
     def of(cls, cfg: ReconstructConfig) -> DepthFilter:
-        """The filter ``cfg`` asks for (``depth_filter_window``, ``depth_filter_k``)."""
-        return cls(cfg.depth_filter_window, cfg.depth_filter_k)
+        """The filter ``cfg`` asks for (``depth_filter_window``, ``depth_filter_k``,
+        ``drop_flying_pixels``)."""
+        return cls(cfg.depth_filter_window, cfg.depth_filter_k, cfg.drop_flying_pixels)
 
     def noise(self, frames: Sequence[Frame]) -> float | None:
         """The median of :func:`view_noise` over ``frames`` (metres at 1 m); None when off."""
@@ -126,4 +130,7 @@ class DepthFilter:
         self, depth: NDArray[np.float32], step: int = 1, offset: int = 0
     ) -> NDArray[np.float32]:
         """The filtered pixels ``depth[offset::step, offset::step]``."""
-        return denoise_depth(depth, self.window, self.k, step, offset)
+        d = np.ascontiguousarray(depth, dtype=np.float32)
+        if self.flying:  # the margins follow the view's own noise and steps
+            d = drop_flying(d, view_noise(d), quantisation_step(d))
+        return denoise_depth(d, self.window, self.k, step, offset)

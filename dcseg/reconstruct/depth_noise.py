@@ -163,21 +163,30 @@ class NoiseModel:
         }
 
 
+FALLBACKS = ((RADIUS, 1), (3, 1))
+"""Smaller windows (radius, stride), tried in turn when depth maps are too small or too holed
+for :data:`MIN_WINDOWS` whole windows."""
+
+
 def noise_model(
     depths: Sequence[NDArray[Any]],
     step: float | None = None,
     radius: int = RADIUS,
     stride: int = STRIDE,
 ) -> NoiseModel:
-    """The noise model pooled over ``depths`` (``[H, W]`` metres, 0 = invalid); ``step`` the
-    quantisation step if known (else the median of :func:`quantisation_step` over them)."""
+    """The noise model pooled over ``depths`` (``[H, W]`` metres, 0 = invalid) with windows of
+    ``radius`` and ``stride`` (then :data:`FALLBACKS`); ``step`` the quantisation step if known
+    (else the median of :func:`quantisation_step` over them)."""
     if step is None:
         step = float(np.median([quantisation_step(d) for d in depths])) if depths else 0.0
-    parts = [
-        plane_residuals(np.ascontiguousarray(d, np.float32), radius, GRID, stride) for d in depths
-    ]
-    z = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
-    sd = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0)
+    maps = [np.ascontiguousarray(d, np.float32) for d in depths]
+    z, sd = np.zeros(0), np.zeros(0)
+    for r, s in ((radius, stride), *FALLBACKS):
+        parts = [plane_residuals(d, r, GRID, s) for d in maps]
+        z = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
+        sd = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0)
+        if len(z) >= MIN_WINDOWS:
+            break
     if len(z) < MIN_WINDOWS:
         return NoiseModel(None, step, ())
     # the residual variance net of the quantisation's (q^2 / 12 in depth, / z^4 in 1 / depth)

@@ -77,6 +77,7 @@ def _report(
         "gaussians": len(result.gaussians),
         "initial_gaussians": result.initial_count,
         "depth_noise_at_1m": result.depth_noise,
+        "sensor": result.sensor,
         "extent": result.extent,
         "train_frames": list(result.train_frames),
         "test_frames": list(result.test_frames),

@@ -5,7 +5,8 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -19,6 +20,7 @@ from dcseg.reconstruct.evaluate import Metrics, evaluate
 from dcseg.reconstruct.fit import FitResult, ProgressCallback, optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
 from dcseg.reconstruct.poses import change_stats, corrected_c2w
+from dcseg.reconstruct.sensor import log_report, sensor_report
 from dcseg.reconstruct.views import make_view, split_frames
 from dcseg.types import Capture, Frame
 
@@ -38,12 +40,14 @@ class Reconstruction:
         losses: the training loss of every step.
         seconds: wall time per phase (``init``, ``train``, ``eval``).
         initial_count: number of Gaussians after initialisation.
-        depth_noise: the training views' median measured depth noise at 1 m (metres; it grows
-            with the squared depth), which sets how far the depth filter may move a pixel;
-            0.0 for noise-free depth, None with the filter off.
+        depth_noise: the training views' measured depth noise at 1 m (metres; it grows with
+            the squared depth, :mod:`dcseg.reconstruct.depth_noise`); 0.0 for noise-free
+            depth, None when no window of the depth could be measured.
         poses: per frame name (trained and held out) its refined camera-to-world pose, None
             when poses are not refined (``cfg.pose_lr`` = 0).
         original_poses: the capture's poses of the same frames (None likewise).
+        sensor: what was detected in the training frames and applied
+            (:func:`dcseg.reconstruct.sensor.sensor_report`).
     """
 
     gaussians: Gaussians
@@ -57,6 +61,7 @@ class Reconstruction:
     depth_noise: float | None = None
     poses: dict[str, NDArray[np.float64]] | None = None
     original_poses: dict[str, NDArray[np.float64]] | None = None
+    sensor: dict[str, Any] = field(default_factory=dict)
 
 
 def fit_gaussians(
@@ -94,9 +99,11 @@ def fit_gaussians(
         fine = [make_view(f, 1, device, denoise) for f in train]
     seconds["init"] = time.perf_counter() - start
     log.info("init: %d Gaussians, extent %.3f m, %d training views", len(init), extent, len(views))
-    noise = denoise.noise(train)
-    if noise is not None:
-        log.info("depth noise at 1 m: %.2f mm (median over the training views)", noise * 1000)
+    start = time.perf_counter()
+    sensor = sensor_report(train, cfg.drop_flying_pixels, cfg.pose_lr > 0)
+    seconds["sensor"] = time.perf_counter() - start
+    log_report(sensor)
+    noise = sensor["depth"]["noise"]["a_at_1m"] if sensor else None
 
     start = time.perf_counter()
     fitted = optimise(init, views, cfg, extent, fine_views=fine, on_progress=on_progress)
@@ -129,6 +136,7 @@ def fit_gaussians(
         depth_noise=noise,
         poses=poses,
         original_poses=None if poses is None else {f.name: f.c2w for f in capture.frames},
+        sensor=sensor,
     )
 
 

@@ -33,8 +33,8 @@ def sensor(
     multiples of ``step`` (0 = not rounded); invalid stays 0."""
     rng = np.random.default_rng(seed)
     h, w = depth.shape
-    noise = rng.normal(0.0, 1.0, (h // block + 1, w // block + 1))
-    noise = np.kron(noise, np.ones((block, block)))[:h, :w]
+    cells = rng.normal(0.0, 1.0, (h // block + 1, w // block + 1))
+    noise = np.kron(cells, np.ones((block, block)))[:h, :w]
     out = depth + noise * a * depth * depth
     if step > 0:
         out = np.round(out / step) * step
@@ -89,6 +89,11 @@ def test_plane_fits_leave_no_residual_on_a_slanted_plane() -> None:
     z, sd = plane_residuals(depth, 7, 8, 2)
     assert len(z) > 100
     assert np.median(sd) < 1e-6  # inverse depth of a plane is exactly a plane
+
+
+def test_small_depth_maps_fall_back_to_smaller_windows() -> None:
+    depths = [sensor(room(24, 32), 0.003, 0.0, seed=s) for s in range(4)]
+    assert noise_model(depths).a == pytest.approx(0.003, rel=0.3)
 
 
 def test_too_little_valid_depth_gives_no_estimate() -> None:

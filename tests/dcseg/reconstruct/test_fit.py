@@ -52,7 +52,8 @@ def test_metrics_are_finite(result: Reconstruction) -> None:
     assert math.isfinite(view.surface_depth_mae) and view.surface_depth_mae < 0.5
     assert result.metrics.psnr == view.psnr
     assert result.metrics.surface_depth_mae == pytest.approx(view.surface_depth_mae)
-    assert set(result.seconds) == {"init", "train", "eval"}
+    assert set(result.seconds) == {"init", "sensor", "train", "eval"}
+    assert result.sensor["depth"]["flying_pixels"]["dropped"] is True
     g = result.gaussians
     assert len(g) > 0 and not g.means.requires_grad
     for tensor in (g.means, g.quats, g.log_scales, g.opacity_logits, g.sh):

@@ -10,6 +10,7 @@ import pytest
 
 from dcseg.reconstruct import init_from_capture
 from dcseg.reconstruct.config import FAST
+from dcseg.reconstruct.depth_filter import DepthFilter
 from dcseg.reconstruct.init import (
     auto_voxel_size,
     backproject,
@@ -125,7 +126,7 @@ def test_point_cloud_coarsens_until_the_cap_as_before(capture) -> None:
     cfg = replace(FAST, init_pixel_stride=1, max_init_points=300)
     extent = scene_extent(capture.frames)
     points, colours = point_cloud(capture.frames, cfg, extent)
-    parts = [backproject(f, 1) for f in capture.frames]
+    parts = [backproject(f, 1, DepthFilter.of(cfg)) for f in capture.frames]
     all_p = np.concatenate([p for p, _ in parts])
     all_c = np.concatenate([c for _, c in parts])
     voxel = auto_voxel_size(extent, cfg)

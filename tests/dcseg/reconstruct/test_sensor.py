@@ -1,0 +1,75 @@
+"""The detected-effects report: depth steps and noise, missing and flying depth, brightness
+changes between frames, and how well consecutive frames' depth agrees under their poses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from dcseg.reconstruct.sensor import depth_agreement, exposure, sensor_report
+from dcseg.types import Frame, Intrinsics
+from tests.dcseg.reconstruct.test_depth_noise import room, sensor
+
+K = Intrinsics(fx=200.0, fy=200.0, cx=159.5, cy=119.5, width=320, height=240)
+
+
+def frame(
+    depth: NDArray[np.float32], c2w: NDArray[np.float64] | None = None, grey: int = 120
+) -> Frame:
+    rgb = np.full((*depth.shape, 3), grey, np.uint8)
+    return Frame("f", rgb, depth, K, np.eye(4) if c2w is None else c2w)
+
+
+def moved(x: float = 0.0, z: float = 0.0) -> NDArray[np.float64]:
+    c2w = np.eye(4)
+    c2w[0, 3], c2w[2, 3] = x, z
+    return c2w
+
+
+def test_the_report_names_the_depth_sensor_effects() -> None:
+    frames = [frame(sensor(room(), 0.003, 0.001, seed=s)) for s in range(3)]
+    report = sensor_report(frames, drop_flying=True)
+    depth = report["depth"]
+    assert depth["noise"]["quantisation_step"] == pytest.approx(0.001, rel=0.01)
+    assert depth["noise"]["a_at_1m"] == pytest.approx(0.003, rel=0.3)
+    hole = (room() == 0).mean()
+    assert depth["missing_fraction"] == pytest.approx(hole, rel=1e-6)
+    assert depth["flying_pixels"]["dropped"] is True
+    assert depth["flying_pixels"]["share_of_edge_pixels"] == 0.0
+    assert report["frames_measured"] == 3
+    assert report["exposure"]["largest_consecutive_change"] == 0.0
+
+
+def test_a_brightness_change_between_frames_is_reported() -> None:
+    depth = sensor(room(), 0.0, 0.001)
+    frames = [frame(depth, grey=g) for g in (100, 100, 130, 130)]
+    ex = exposure(frames)
+    assert ex["largest_consecutive_change"] == pytest.approx(0.3, abs=0.01)
+    assert ex["spread"] == pytest.approx(np.std([100, 100, 130, 130]) / 115, rel=0.01)
+    assert ex["corrected"] is False
+
+
+def plane_depth(distance: float) -> NDArray[np.float32]:
+    """A wall facing the camera ``distance`` metres away."""
+    return np.full((240, 320), distance, np.float32)
+
+
+def test_exact_poses_agree_and_a_pose_error_shows() -> None:
+    first = frame(plane_depth(2.0))
+    second = frame(plane_depth(2.0), moved(x=0.1))  # the same wall from 10 cm to the side
+    exact = depth_agreement([first, second], 0.0, 0.001)
+    assert exact is not None and exact["depth_disagreement"] < 1e-6
+    assert exact["ratio"] < 1.0
+    # the second camera really stood 2 cm closer to the wall than its pose says
+    wrong = depth_agreement([first, frame(plane_depth(1.98), moved(x=0.1))], 0.0, 0.001)
+    assert wrong is not None
+    assert wrong["depth_disagreement"] == pytest.approx(0.02, rel=0.01)
+    assert wrong["ratio"] > 10
+
+
+def test_frames_that_see_nothing_in_common_give_no_agreement() -> None:
+    behind = moved(z=5.0)
+    behind[:3, :3] = np.diag([-1.0, 1.0, -1.0])  # turned round, facing away
+    assert depth_agreement([frame(plane_depth(2.0)), frame(plane_depth(2.0), behind)], 0, 0) is None
+    assert sensor_report([], drop_flying=True) == {}

@@ -1,4 +1,5 @@
 """The independent readers of ``tools/export-check`` (npm, installed by ``scripts/setup.sh``):
+the Khronos glTF validator, PlayCanvas splat-transform and the PlayCanvas engine's glTF parser;
 found or the test skips saying why."""
 
 from __future__ import annotations
@@ -57,3 +58,15 @@ def gltf_validate(*paths: Path) -> list[dict[str, Any]]:
     )  # fmt: skip
     reports: list[dict[str, Any]] = json.loads(result.stdout)
     return reports
+
+
+def playcanvas_glb(*paths: Path) -> list[dict[str, Any]]:
+    """Each GLB as the PlayCanvas engine's glTF parser loads it (``read-glb-splats.mjs``): its
+    nodes, each with the Gaussians the engine decoded from its mesh."""
+    _installed("playcanvas")
+    result = subprocess.run(
+        [_node(), str(TOOLS / "read-glb-splats.mjs"), *map(str, paths)],
+        check=True, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    files: list[dict[str, Any]] = json.loads(result.stdout)
+    return files

@@ -19,17 +19,20 @@ torch_spec="torch==2.13.0+cpu"
 targets=("$@")
 [ ${#targets[@]} -gt 0 ] || targets=(api worker-cpu redis postgres seaweedfs)
 
-build() {  # build NAME DOCKERFILE [--build-arg ...]
-    local name="$1" file="$2"
+build() {  # build NAME DOCKERFILE [--build-arg ...]; the output is shown only on failure
+    local name="$1" file="$2" log
     shift 2
     local start=$SECONDS
+    log="$(mktemp)"
     echo "build: dcseg-$name:$tag from $file" >&2
-    if ! DOCKER_BUILDKIT=0 docker build -q -f "$file" -t "dcseg-$name:$tag" \
-        --build-arg "BASE_IMAGE=$base" "$@" . >/dev/null; then
-        echo "build: dcseg-$name failed; see the output above (rerun: DOCKER_BUILDKIT=0" \
-            "docker build -f $file .)" >&2
+    if ! DOCKER_BUILDKIT=0 docker build -f "$file" -t "dcseg-$name:$tag" \
+        --build-arg "BASE_IMAGE=$base" "$@" . >"$log" 2>&1; then
+        tail -n 60 "$log" >&2
+        rm -f "$log"
+        echo "build: dcseg-$name failed (the last lines of its build are above)" >&2
         return 1
     fi
+    rm -f "$log"
     echo "build: dcseg-$name:$tag in $((SECONDS - start)) s" >&2
 }
 

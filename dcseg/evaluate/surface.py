@@ -1,5 +1,6 @@
 """How far reconstructed Gaussians sit from the true surfaces (issue 14: surfaces where they
-belong), measured against a synthetic scene's ground-truth surface points.
+belong) and how much of them they cover (issue 38), measured against a synthetic scene's
+ground-truth surface points.
 
 Ground-truth points are a sampling of the surfaces (``dcseg synth`` writes ~1.5 cm spacing), so
 the distance to the nearest point has a floor of about half that spacing. Each centre is
@@ -63,4 +64,45 @@ def surface_report(
         "p90": float(np.percentile(d, 90)),
         "mean": float(d.mean()),
         "within_1cm": float((d < 0.01).mean()),
+    }
+
+
+def coverage(
+    centres: NDArray[Any],
+    opacities: NDArray[Any],
+    surface: NDArray[Any],
+    radius: float = 0.05,
+    min_opacity: float = 0.5,
+) -> dict[str, float]:
+    """How much of the surface the opaque Gaussians (opacity above ``min_opacity``) cover: the
+    share of surface points with no opaque centre within ``radius`` metres (the coverage gap)
+    and the median distance from a surface point to its nearest opaque centre."""
+    opaque = np.asarray(centres, dtype=np.float64).reshape(-1, 3)[
+        np.asarray(opacities).reshape(-1) > min_opacity
+    ]
+    pts = np.asarray(surface, dtype=np.float64).reshape(-1, 3)
+    if len(opaque) == 0 or len(pts) == 0:
+        return {"gap": 1.0 if len(pts) else float("nan"), "median_to_centre": float("inf")}
+    distance, _ = cKDTree(opaque).query(pts, k=1)
+    return {
+        "gap": float((distance > radius).mean()),
+        "median_to_centre": float(np.median(distance)),
+    }
+
+
+def geometry_report(
+    centres: NDArray[Any],
+    opacities: NDArray[Any],
+    surface: NDArray[Any],
+    radius: float = 0.05,
+    min_opacity: float = 0.5,
+) -> dict[str, Any]:
+    """Centre-to-surface distances (:func:`surface_report`) and :func:`coverage` of one
+    reconstruction against ground-truth surface points, with the thresholds used."""
+    return {
+        "surface_points": int(np.asarray(surface).reshape(-1, 3).shape[0]),
+        "min_opacity": min_opacity,
+        "coverage_radius": radius,
+        "centre_to_surface": surface_report(centres, opacities, surface, min_opacity),
+        "coverage": coverage(centres, opacities, surface, radius, min_opacity),
     }

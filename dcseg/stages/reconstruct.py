@@ -1,12 +1,15 @@
 """The reconstruct stage (method step 1): Gaussians fitted to the posed RGB-D frames.
 
 Writes ``scene.ply`` (3DGS layout), ``reconstruction.json`` (held-out metrics, the frame
-budget's choice, the size rules, timings) and, when poses were refined, ``poses.json``. A job
-given a scene (:attr:`~dcseg.inputs.RunInputs.scene`) links it (and its poses) instead.
+budget's choice, the size rules, timings, the detected sensor effects and, when the job has
+ground-truth surface points, the geometry: centre-to-surface distance and coverage) and, when
+poses were refined, ``poses.json``. A job given a scene
+(:attr:`~dcseg.inputs.RunInputs.scene`) links it (and its poses) instead.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,6 +25,8 @@ from dcseg.stages.records import versions
 
 if TYPE_CHECKING:
     from dcseg.types import Capture
+
+log = logging.getLogger(__name__)
 
 SCENE = "scene.ply"
 REPORT = "reconstruction.json"
@@ -62,6 +67,9 @@ def _fitted(run: StageRun, capture: Capture, size: SceneSize, where: Any) -> dic
             capture, cfg, where, steps(run.progress, "reconstruct")
         )
     report["size_rules"] = rules_record
+    if run.inputs.ground_truth is not None:
+        with run.clock.phase("geometry"):
+            report["geometry"] = _geometry(gaussians, run.inputs.ground_truth)
     with run.clock.phase("write"):
         write_gaussians_ply(run.out / SCENE, gaussians)
         refinement = report.get("pose_refinement")
@@ -72,9 +80,30 @@ def _fitted(run: StageRun, capture: Capture, size: SceneSize, where: Any) -> dic
             capture = with_poses(capture, poses)
         else:  # an earlier refined scene's poses would be read with this scene
             (run.out / POSES_FILE).unlink(missing_ok=True)
-    report["seconds"] = {**report["seconds"], **_phases(run, ("read", "write"))}
+    report["seconds"] = {**report["seconds"], **_phases(run, ("read", "geometry", "write"))}
     report["versions"] = {"dcseg": __version__, **versions()}
     run.handover.capture, run.handover.gaussians = capture, gaussians
+    return report
+
+
+def _geometry(gaussians: Any, ground_truth: Path) -> dict[str, Any]:
+    """:func:`dcseg.evaluate.surface.geometry_report` of ``gaussians`` against the ground
+    truth's points (their labels play no part)."""
+    from dcseg.evaluate.surface import geometry_report
+    from dcseg.io.ground_truth import read_ground_truth
+
+    surface = read_ground_truth(ground_truth, 0).points
+    means = gaussians.means.detach().cpu().numpy()
+    opacities = gaussians.opacities().detach().cpu().numpy()
+    report = geometry_report(means, opacities, surface)
+    log.info(
+        "geometry: opaque centres %.1f mm from the surface (median); %.1f %% of it without an "
+        "opaque centre within %.0f cm",
+        report["centre_to_surface"]["median"] * 1000,
+        report["coverage"]["gap"] * 100,
+        report["coverage_radius"] * 100,
+    )
+    report["ground_truth"] = str(ground_truth)
     return report
 
 
@@ -113,7 +142,7 @@ def _phases(run: StageRun, names: tuple[str, ...]) -> dict[str, float]:
 RECONSTRUCT = Stage(
     name="reconstruct",
     needs=(),
-    inputs=("capture",),
+    inputs=("capture", "ground_truth"),
     outputs=(SCENE, REPORT, POSES_FILE),
     config=("capture", "pipeline.budget", "pipeline.rules", "pipeline.reconstruct"),
     parts={"reconstruct": 1.0},

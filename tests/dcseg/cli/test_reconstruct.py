@@ -14,9 +14,12 @@ from dcseg.cli import main
 from dcseg.cli._pipeline import job_config
 from dcseg.config import BUDGET_PRESETS, CaptureOptions, FrameBudget
 from dcseg.io.captures.plan import CaptureMeta, plan_capture
+from dcseg.io.ground_truth import write_ground_truth_ply
 from dcseg.io.ply import read_gaussians_ply
 from dcseg.io.poses import read_poses
 from dcseg.reconstruct.config import REFINE_POSES, SURFACE_PRIORS
+from dcseg.reconstruct.init import backproject
+from dcseg.types import GroundTruth
 from tests.scenes.analytic import make_capture
 
 
@@ -61,10 +64,31 @@ def test_reconstruct_writes_ply_and_report(
     assert sensor["depth"]["noise"]["a_at_1m"] == report["depth_noise_at_1m"]
     assert 0.0 <= sensor["depth"]["missing_fraction"] <= 1.0
     assert set(sensor) == {"frames_measured", "depth", "exposure", "poses"}
+    assert "geometry" not in report  # no ground truth beside the capture
     assert report["backend"] == "cpu"
     assert report["peak_memory_mb"] > 0 and "torch" in report["versions"]
     assert report["capture"]["size"] == [24, 18] and report["capture"]["factor"] == 1
     assert "reconstruct" in capsys.readouterr().err  # the progress bar
+
+
+def test_a_bundles_ground_truth_adds_geometry_metrics(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", planned_reader([], []))
+    frames = make_capture(5, 24, 18).frames
+    surface = np.concatenate([backproject(f)[0] for f in frames])  # points on the surfaces
+    gt = GroundTruth(surface, np.zeros(len(surface), np.int64))
+    write_ground_truth_ply(tmp_path / "gt" / "points.ply", gt)
+    out = tmp_path / "out"
+    argv = ["reconstruct", str(tmp_path), "--out", str(out), "--iterations", "8"]
+    assert main(argv + ["--holdout", "3", "--intrinsics", "10,10,5,5"]) == 0
+    report = json.loads((out / "reconstruction.json").read_text())
+    geometry = report["geometry"]
+    assert geometry["surface_points"] == len(surface)
+    assert geometry["ground_truth"] == str(tmp_path / "gt" / "points.ply")
+    assert 0.0 <= geometry["coverage"]["gap"] <= 1.0
+    assert set(geometry["centre_to_surface"]) >= {"opaque", "median", "p90", "within_1cm"}
+    assert "geometry" in report["seconds"]
 
 
 def test_reconstruct_reports_input_errors(

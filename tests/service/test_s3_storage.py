@@ -16,9 +16,12 @@ import pytest
 
 from jobstore.s3 import S3Storage
 from jobstore.settings import Settings
+from service.exports import cache_root
 from service.main import create_app
 from tests.s3server import S3Server, s3_server, s3_settings  # noqa: F401 (fixture)
+from tests.scenes.runs import make_run
 from tests.service.conftest import AUTH_A, AUTH_B, TAR, TestClient, assert_problem, state_of
+from tests.service.segmented import run_segmented_job
 from tests.worker.fakes import FakeStage
 from worker.execute import execute_job
 from worker.stage import StageContext, StageOutcome
@@ -259,3 +262,18 @@ def test_the_client_follows_presigned_urls_and_falls_back(
         assert len(files) == 2
         proxied = [p for p in transport.paths if "/artifacts/" in p]
         assert len(proxied) == (2 if expiry_s == 1 else 0)
+
+
+def test_the_viewers_frame_json_is_read_from_the_bucket(client, scene_tar, s3, tmp_path):
+    """Without a frame.json of its own the job's is derived from the segment stage's poses,
+    fetched from the bucket into the exports' copy of the run; a job's own is read as stored."""
+    run = make_run(tmp_path / "run")  # +z up poses in state/
+    files = {p.relative_to(run).as_posix(): p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    upload = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR}).json()
+    derived = run_segmented_job(client, upload["id"], files=files)
+    frame = client.get(f"/viewer/{derived}/frame.json", headers=AUTH_A)
+    assert frame.status_code == 200 and frame.json()["world"]["up_axis"] == "+z"
+    assert (cache_root(s3, derived) / "run" / "state" / "views.json").is_file()
+    own = run_segmented_job(client, upload["id"], files={**files, "frame.json": b'{"up": 1}'})
+    assert client.get(f"/viewer/{own}/frame.json", headers=AUTH_A).content == b'{"up": 1}'
+    assert not (cache_root(s3, own) / "run").exists()  # nothing fetched but the file

@@ -181,3 +181,24 @@ def test_top_folder_ignores_existing_files_and_dot_entries(tmp_path: Path) -> No
     assert safe_extract(archive, dest) == dest / "scene"
     single_file = _zip(tmp_path / "f.zip", {"only.txt": b"x"})
     assert safe_extract(single_file, tmp_path / "o2") == tmp_path / "o2"
+
+
+@pytest.mark.parametrize(
+    ("member", "refusal"),
+    [
+        (_member("../x"), "escapes the archive folder"),
+        (_member("/etc/cron.d/x"), "is an absolute path"),
+        (_member("link", tarfile.SYMTYPE, "/etc/passwd"), "is a link"),
+        (_member("dev", tarfile.CHRTYPE), "is a device"),
+    ],
+)
+def test_tar_refusals_without_the_standard_data_filter(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, member: tarfile.TarInfo, refusal: str
+) -> None:
+    """Python 3.11 before 3.11.4 (Debian bookworm's, in the images) has no tarfile.data_filter:
+    the archive checks refuse the same entries without it."""
+    monkeypatch.setattr("dcseg.io.archive._DATA_FILTER", None)
+    archive = _tar(tmp_path / "evil.tar", [(member, b"bad" if member.isfile() else None)])
+    with pytest.raises(InputError, match=rf"archive entry '{member.name}' {refusal}"):
+        safe_extract(archive, tmp_path / "out")
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*"))

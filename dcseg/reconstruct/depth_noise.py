@@ -154,11 +154,13 @@ class NoiseModel:
     bins: tuple[tuple[float, float, int], ...]
 
     def as_dict(self) -> dict[str, Any]:
-        """The model for ``reconstruction.json``."""
+        """The model for ``reconstruction.json``; ``units_per_metre`` is the depth scale the
+        step implies (1000 for millimetre PNGs, 6553.5 for Replica's), None when continuous."""
         return {
             "model": "sigma(z) = a z^2",
             "a_at_1m": self.a,
             "quantisation_step": self.step,
+            "units_per_metre": round(1.0 / self.step, 1) if self.step > 0 else None,
             "bins": [{"depth": z, "sigma": s, "windows": n} for z, s, n in self.bins],
         }
 

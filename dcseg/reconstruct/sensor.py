@@ -3,9 +3,10 @@
 :func:`sensor_report` measures, on the training frames (at most :data:`MAX_FRAMES` of them,
 evenly spread, for the per-pixel measurements):
 
-* ``depth``: the quantisation step and the noise model ``sigma(z) = a z^2``
-  (:mod:`dcseg.reconstruct.depth_noise`), the share of pixels without depth, and the flying
-  pixels at depth edges (:mod:`dcseg.reconstruct.flying`) with whether they were dropped;
+* ``depth``: the quantisation step (and the depth scale it implies) and the noise model
+  ``sigma(z) = a z^2`` (:mod:`dcseg.reconstruct.depth_noise`), the share of pixels without
+  depth, and the flying pixels at depth edges (:mod:`dcseg.reconstruct.flying`) with whether
+  they were dropped;
 * ``exposure``: every frame's mean brightness (Rec. 601 luma of its colour): the spread over
   frames and the largest change between consecutive frames, which a changing exposure or white
   balance shows as much as a changing view (no per-view colour correction exists yet);

@@ -32,6 +32,7 @@ def test_the_report_names_the_depth_sensor_effects() -> None:
     report = sensor_report(frames, drop_flying=True)
     depth = report["depth"]
     assert depth["noise"]["quantisation_step"] == pytest.approx(0.001, rel=0.01)
+    assert depth["noise"]["units_per_metre"] == pytest.approx(1000.0, rel=0.01)  # millimetres
     assert depth["noise"]["a_at_1m"] == pytest.approx(0.003, rel=0.3)
     hole = (room() == 0).mean()
     assert depth["missing_fraction"] == pytest.approx(hole, rel=1e-6)

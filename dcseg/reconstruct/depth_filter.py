@@ -68,7 +68,12 @@ def window_median(depth: Array, radius: int, step: int, offset: int) -> Array:
 
 
 def denoise_depth(
-    depth: NDArray[np.float32], window: int, k: float, step: int = 1, offset: int = 0
+    depth: NDArray[np.float32],
+    window: int,
+    k: float,
+    step: int = 1,
+    offset: int = 0,
+    sigma: float | None = None,
 ) -> NDArray[np.float32]:
     """The pixels ``depth[offset::step, offset::step]``, each valid one replaced by its window
     median where the two differ by at most ``k x sigma x d^2`` (module docstring); invalid
@@ -80,6 +85,7 @@ def denoise_depth(
         window: odd window edge in pixels (3, 5, ...); 1 returns the grid unfiltered.
         k: how many noise deviations a replacement may move a pixel (> 0).
         step, offset: the returned grid (``step >= 1``, ``0 <= offset < step``).
+        sigma: the view's noise at 1 m if already measured (else :func:`view_noise`).
 
     Returns:
         ``[ceil((H - offset) / step), ceil((W - offset) / step)]`` float32, a new array.
@@ -94,7 +100,7 @@ def denoise_depth(
     grid = d[offset::step, offset::step].copy()
     if window == 1:
         return grid
-    sigma = view_noise(d)
+    sigma = view_noise(d) if sigma is None else sigma
     if sigma == 0.0:  # noise-free (or quantised) depth: nothing to do, and nothing to pay
         return grid
     median, full = window_median(d, window // 2, step, offset)
@@ -131,6 +137,8 @@ class DepthFilter:
     ) -> NDArray[np.float32]:
         """The filtered pixels ``depth[offset::step, offset::step]``."""
         d = np.ascontiguousarray(depth, dtype=np.float32)
-        if self.flying:  # the margins follow the view's own noise and steps
-            d = drop_flying(d, view_noise(d), quantisation_step(d))
-        return denoise_depth(d, self.window, self.k, step, offset)
+        if not self.flying:
+            return denoise_depth(d, self.window, self.k, step, offset)
+        sigma = view_noise(d)  # the flying pixels' margins follow the view's noise and steps
+        d = drop_flying(d, sigma, quantisation_step(d))
+        return denoise_depth(d, self.window, self.k, step, offset, sigma)

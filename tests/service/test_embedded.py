@@ -33,30 +33,27 @@ from tests.service.conftest import (
     wait_for,
 )
 
-REPO = Path(__file__).resolve().parents[2]
 TINY = {
     "reconstruct": {"iterations": 3, "holdout": 0},
     "affinity": {"iterations": 5, "rays": 64},
 }
 
 
-@pytest.fixture(params=["absolute", "relative"])
-def serve(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[str]:
+@pytest.fixture
+def serve(tmp_path: Path) -> Iterator[str]:
     """``dcseg serve`` in a child process, with its default embedded worker; yields its URL.
-    Its storage folder is absolute (``DCSEG_STORAGE_DIR``), then the default, the relative
-    ``./dcseg-data``, in ``tmp_path`` (as a user's first ``dcseg serve`` has it)."""
+    Its storage folder is the default, the relative ``./dcseg-data``, in ``tmp_path`` (as a
+    user's first ``dcseg serve`` has it; every other service test gives an absolute one)."""
     port = free_port()
     env = {
         **os.environ,
-        "DCSEG_STORAGE_DIR": str(tmp_path / "data"),
         "DCSEG_API_KEYS": f"tenant-a:{KEY_A}",
         "DCSEG_POLL_INTERVAL_S": "0.1",
         "DCSEG_DEVICE": "cpu",
     }
     env.pop("DCSEG_DATABASE_URL", None)
     env.pop("DCSEG_BROKER_URL", None)
-    if request.param == "relative":
-        env.pop("DCSEG_STORAGE_DIR")
+    env.pop("DCSEG_STORAGE_DIR", None)
     log = (tmp_path / "serve.log").open("wb")
     command = [
         sys.executable,
@@ -68,8 +65,7 @@ def serve(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[str]:
         "--log-level",
         "warning",
     ]
-    cwd = tmp_path if request.param == "relative" else REPO
-    process = subprocess.Popen(command, env=env, cwd=cwd, stdout=log, stderr=subprocess.STDOUT)
+    process = subprocess.Popen(command, env=env, cwd=tmp_path, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
 
     def up() -> bool:
@@ -82,8 +78,7 @@ def serve(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[str]:
     try:
         wait_for(up, timeout=60, every=0.1)
         yield url
-        if request.param == "relative":  # the jobs were where the default says
-            assert (tmp_path / "dcseg-data" / "jobs").is_dir()
+        assert (tmp_path / "dcseg-data" / "jobs").is_dir()  # where the default says
     finally:
         stop_process(process, signal.SIGINT, 20)
         log.close()

@@ -25,7 +25,7 @@ build() {  # build NAME DOCKERFILE [--build-arg ...]; the output is shown only o
     local start=$SECONDS
     log="$(mktemp)"
     echo "build: dcseg-$name:$tag from $file" >&2
-    if ! DOCKER_BUILDKIT=0 docker build -f "$file" -t "dcseg-$name:$tag" \
+    if ! DOCKER_BUILDKIT=0 docker build --force-rm -f "$file" -t "dcseg-$name:$tag" \
         --build-arg "BASE_IMAGE=$base" "$@" . >"$log" 2>&1; then
         tail -n 60 "$log" >&2
         rm -f "$log"

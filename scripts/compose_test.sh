@@ -8,9 +8,16 @@
 # containers' logs.
 #
 #   bash scripts/compose_test.sh
+#   bash scripts/compose_test.sh --build-only           # daemon and images only (CI, meanwhile)
 #   DCSEG_COMPOSE_KEEP=1 bash scripts/compose_test.sh   # leave the stack up afterwards
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
+build_only=""
+case "${1:-}" in
+    "") ;;
+    --build-only) build_only=1 ;;
+    *) echo "usage: bash scripts/compose_test.sh [--build-only]" >&2; exit 2 ;;
+esac
 
 project="${DCSEG_COMPOSE_PROJECT:-dcsegtest}"
 work="$(mktemp -d)"
@@ -77,6 +84,10 @@ fi
 
 at "build images"
 bash docker/build.sh
+if [ -n "$build_only" ]; then
+    step="tear down"
+    exit 0
+fi
 
 at "start the stack"
 python="python3"

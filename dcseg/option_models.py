@@ -15,6 +15,7 @@ from types import NoneType
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
@@ -28,6 +29,20 @@ from dcseg.fields import ABOVE, BOUNDS, CHOICES, FIXED, GROUP, HELP, NONE_WORD
 
 Member = tuple[type[Any], str]
 """A settable field: its dataclass and its name."""
+
+MAX_NAMES = 256
+"""The most names a list option (``tuple[str, ...]``, e.g. stuff classes) may hold."""
+
+
+def _plain_name(name: str) -> str:
+    if name != name.strip() or "\n" in name:
+        raise ValueError(f"a name must not start or end with blanks or hold a newline: {name!r}")
+    return name
+
+
+NAME = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(_plain_name)]
+"""One name of a list option: non-blank, without leading or trailing blanks (the vocabulary
+reader strips its names, so a padded name would never match one)."""
 
 
 class Strict(BaseModel):
@@ -121,14 +136,20 @@ def _inner(name: str, base: Any, meta: Mapping[str, Any]) -> Any:
         lower = {"gt": low} if meta.get(ABOVE) else {"ge": low}
         return Annotated[base, Field(**lower, le=high, allow_inf_nan=False)]
     if typing.get_origin(base) is tuple:
-        items = typing.get_args(base)
-        element: Any
-        if items[0] is int and bounds is not None:
-            element = Annotated[int, Field(ge=bounds[0], le=bounds[1])]
-        else:
-            element = Annotated[float, Field(allow_inf_nan=False)]
-        return tuple[tuple(element for _ in items)]  # type: ignore[misc]
+        return _tuple(typing.get_args(base), bounds)
     raise TypeError(f"no option type for {name}: {base}")
+
+
+def _tuple(items: tuple[Any, ...], bounds: tuple[float, float] | None) -> Any:
+    """A list of names (``tuple[str, ...]``) or a fixed-length tuple of numbers."""
+    if items == (str, Ellipsis):
+        return Annotated[tuple[NAME, ...], Field(max_length=MAX_NAMES)]
+    element: Any
+    if items[0] is int and bounds is not None:
+        element = Annotated[int, Field(ge=bounds[0], le=bounds[1])]
+    else:
+        element = Annotated[float, Field(allow_inf_nan=False)]
+    return tuple[tuple(element for _ in items)]  # type: ignore[misc]
 
 
 def _cap(low: int, high: int, word: str) -> Any:

@@ -105,7 +105,11 @@ class AssignConfig:
             0.3 left clean layout 0 at 100 / 97.4 with 24-25 instances.
         stuff_classes: class names that are surfaces, not objects: each connected surface of
             such a class is one region, whatever its clusters (names absent from the
-            vocabulary are ignored).
+            vocabulary are ignored; empty = every class is an object class).
+        unlabelled_id: a class-map value that means "no class" (its pixels are unlabelled, not
+            votes for the vocabulary's class of that index), in addition to each format's own
+            unlabelled values (:mod:`dcseg.io.semantic`); None = only those. ScanNet's
+            ``label-filt`` PNGs use 0 for unannotated pixels.
         surface_min_normal_cosine: two touching clusters of a stuff class are one surface when
             the |cosine| of their plane normals (least-variance direction of each cluster's
             Gaussian centres) is at least this (0.8 = 37 degrees) ...
@@ -213,7 +217,21 @@ class AssignConfig:
     merge_min_vote_cosine: float = 0.5
     merge_near: bool = True
     near_min_cosine: float = 0.3
-    stuff_classes: tuple[str, ...] = ("wall", "floor", "ceiling")
+    stuff_classes: tuple[str, ...] = option(
+        ("wall", "floor", "ceiling"),
+        help="class names that are surfaces, not objects: each connected surface of one is a "
+        "region, not object instances (comma-separated on the command line; empty = none)",
+        flag="--stuff-classes",
+        group="segment",
+    )
+    unlabelled_id: int | None = option(
+        None,
+        bounds=(0, 65535),
+        help="the value that marks unlabelled pixels in the class maps, besides each format's "
+        "own (255 / 65535 in PNGs, negative in .npy), e.g. 0 for ScanNet's unannotated",
+        flag="--unlabelled-id",
+        group="segment",
+    )
     surface_min_normal_cosine: float = 0.8
     surface_max_tilt: float = 0.3
     split_stuff_planes: bool = True
@@ -262,6 +280,23 @@ class AssignConfig:
                 f"label_maps must be 'gaussians' or 'clusters', got {self.label_maps!r}"
             )
         self._check_objects()
+        self._check_classes()
+
+    def _check_classes(self) -> None:
+        names = self.stuff_classes
+        if not isinstance(names, tuple) or not all(isinstance(n, str) and n.strip() for n in names):
+            raise ValueError(
+                f"stuff_classes must be a tuple of non-blank class names, got {names!r}"
+            )
+        unlabelled = self.unlabelled_id
+        if unlabelled is not None and (
+            isinstance(unlabelled, bool)
+            or not isinstance(unlabelled, int)
+            or not 0 <= unlabelled <= 65535
+        ):
+            raise ValueError(
+                f"unlabelled_id must be an int in [0, 65535] or None, got {unlabelled!r}"
+            )
 
     def _check_objects(self) -> None:
         positive = {"contact_factor": self.contact_factor, "neighbours": self.neighbours}

@@ -56,6 +56,19 @@ def parse_intrinsics(text: str) -> tuple[float, float, float, float]:
     return fx, fy, cx, cy
 
 
+def parse_names(text: str) -> tuple[str, ...]:
+    """Parse comma-separated names (``wall,floor,ceiling``; ``""`` = none); each is stripped,
+    and a blank one is refused."""
+    if not text.strip():
+        return ()
+    names = tuple(name.strip() for name in text.split(","))
+    if not all(names):
+        raise argparse.ArgumentTypeError(
+            f"names must look like wall,floor,ceiling (no blank name), got {text!r}"
+        )
+    return names
+
+
 def parse_cap(text: str) -> int | str:
     """An integer (``640``) or a word (``native``, ``all``); the config builder checks which."""
     return int(text) if text.strip().lstrip("-").isdigit() else text.strip().lower()
@@ -120,7 +133,10 @@ def _parser(f: dataclasses.Field[Any], hint: Any) -> Callable[[str], Any] | None
     args = typing.get_args(hint)
     base = next(a for a in args if a is not NoneType) if NoneType in args else hint
     if typing.get_origin(base) is tuple:
-        return parse_size if typing.get_args(base)[0] is int else parse_intrinsics
+        items = typing.get_args(base)
+        if items == (str, Ellipsis):
+            return parse_names
+        return parse_size if items[0] is int else parse_intrinsics
     return base if base in (int, float) else None  # type: ignore[no-any-return]
 
 

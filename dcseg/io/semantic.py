@@ -6,6 +6,10 @@ A semantic-map folder holds one single-channel class map per frame, matched by f
   DEVA) is read by palette index, 255 = unlabelled;
 * ``<stem>.npy`` integer (negative = unlabelled).
 
+One more value may be declared unlabelled (``unlabelled``, the job option
+``segment.unlabelled_id``): ScanNet's ``label-filt`` PNGs use 0 for unannotated pixels, which
+then vote for no class instead of the vocabulary's first.
+
 The folder may instead be a panoptic source (:mod:`dcseg.io.mask_formats.panoptic`): each
 segment's category is the class of its pixels; or one COCO instance JSON, whose annotations
 paint their categories (:mod:`dcseg.io.mask_formats.coco`).
@@ -19,6 +23,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +48,7 @@ from dcseg.types import SemanticMap, Vocabulary
 __all__ = [
     "iter_semantic_maps",
     "read_semantic_maps",
+    "without_class",
     "read_vocabulary",
     "write_semantic_png",
     "write_vocabulary",
@@ -161,6 +167,7 @@ def read_semantic_maps(
     *,
     size: tuple[int, int] | None = None,
     frames: FrameSelection | None = None,
+    unlabelled: int | None = None,
 ) -> dict[str, SemanticMap]:
     """Read every frame's class map from a folder of ``.png`` / ``.npy`` files.
 
@@ -169,6 +176,9 @@ def read_semantic_maps(
         vocabulary: the classes the maps index into; indices must be ``< len(vocabulary)``.
         size: optional target ``(width, height)``; maps are rescaled with nearest neighbour.
         frames: read only these frames' maps (a run's keyframes); None = every file.
+        unlabelled: a value that marks unlabelled pixels besides the format's own (255 /
+            65535 in PNGs, negative in ``.npy``); for panoptic and COCO sources, the class
+            index it gives. None = only the format's own.
 
     Returns:
         Maps keyed by frame stem (sorted), ``[H, W]`` int32 with ``-1`` = unlabelled.
@@ -178,7 +188,8 @@ def read_semantic_maps(
     """
     out: dict[str, SemanticMap] = {}
     problems: list[Problem] = []
-    for item in iter_semantic_maps(folder, vocabulary, size=size, frames=frames):
+    items = iter_semantic_maps(folder, vocabulary, size=size, frames=frames, unlabelled=unlabelled)
+    for item in items:
         if isinstance(item, Problem):
             problems.append(item)
         else:
@@ -194,6 +205,7 @@ def iter_semantic_maps(
     *,
     size: tuple[int, int] | None = None,
     frames: FrameSelection | None = None,
+    unlabelled: int | None = None,
 ) -> Iterator[SemanticMap | Problem]:
     """Like :func:`read_semantic_maps`, one map at a time (for checks that must not hold them
     all); each problem is yielded in place of the map it concerns.
@@ -206,7 +218,8 @@ def iter_semantic_maps(
     layout = detect_masks(folder)
     whole = _LAYOUT_READERS.get(layout.kind)
     if whole is not None:
-        yield from whole(layout, vocabulary, size, frames)
+        for item in whole(layout, vocabulary, size, frames):
+            yield item if isinstance(item, Problem) else without_class(item, unlabelled)
         return
     entries, problems = _map_entries(folder)
     if frames is not None:
@@ -215,7 +228,7 @@ def iter_semantic_maps(
     yield from problems
     for stem, path in sorted(entries.items()):
         try:
-            classes = _read_class_map(path, folder.parent, len(vocabulary))
+            classes = _read_class_map(path, folder.parent, len(vocabulary), unlabelled)
         except InputError as err:
             yield from err.problems
             continue
@@ -265,8 +278,20 @@ def _map_entries(folder: Path) -> tuple[dict[str, Path], list[Problem]]:
     return entries_by_stem(folder, stem_of, "class maps")
 
 
-def _read_class_map(path: Path, root: Path, n_classes: int) -> NDArray[np.int32]:
-    """One class map as int32 with -1 = unlabelled, checked against the vocabulary size."""
+def without_class(m: SemanticMap, unlabelled: int | None) -> SemanticMap:
+    """``m`` with the class ``unlabelled`` (if any) made unlabelled (-1)."""
+    if unlabelled is None:
+        return m
+    classes = m.classes.copy()
+    classes[classes == unlabelled] = -1
+    return replace(m, classes=classes)
+
+
+def _read_class_map(
+    path: Path, root: Path, n_classes: int, extra: int | None = None
+) -> NDArray[np.int32]:
+    """One class map as int32 with -1 = unlabelled (the format's own value, and ``extra``),
+    checked against the vocabulary size."""
     shown = display_path(path, root)
     if path.suffix.lower() == ".png":
         raw = _read_png_map(path, root, shown)
@@ -274,6 +299,8 @@ def _read_class_map(path: Path, root: Path, n_classes: int) -> NDArray[np.int32]
     else:
         raw = _read_npy_map(path, shown)
         unlabelled = raw < 0
+    if extra is not None:
+        unlabelled |= raw == extra
     _check_range(raw[~unlabelled], n_classes, shown)
     classes = raw.astype(np.int32)
     classes[unlabelled] = -1

@@ -88,20 +88,26 @@ def _trained(run: StageRun) -> SavedRun | None:
 
 def _with_semantic(run: StageRun, saved: SavedRun) -> SavedRun:
     """The run with the job's class-aware masks and vocabulary, or its own when the job gives
-    none (re-clustering; a run without any is segmented class-agnostically)."""
+    none (re-clustering; a run without any is segmented class-agnostically). The class
+    ``assign.unlabelled_id`` names, if any, is unlabelled in either."""
     from dcseg.io.folders import FrameSelection
-    from dcseg.io.semantic import read_semantic_maps, read_vocabulary
+    from dcseg.io.semantic import read_semantic_maps, read_vocabulary, without_class
 
+    unlabelled = run.config.pipeline.assign.unlabelled_id
     masks, vocabulary_file = run.inputs.semantic_masks, run.inputs.vocabulary
     if masks is None and vocabulary_file is None:
-        return saved  # its own masks, or none: objects without classes (class-agnostic)
+        # its own masks, or none: objects without classes (class-agnostic)
+        own = {name: without_class(m, unlabelled) for name, m in saved.semantic.items()}
+        return replace(saved, semantic=own)
     if masks is None or vocabulary_file is None:
         raise InputError.single("semantic masks", "new class-aware masks need a vocabulary")
     vocabulary = read_vocabulary(vocabulary_file)
     names = frozenset(v.name for v in saved.trained.views)
     listed = saved.record.get("capture", {}).get("listed_frames")
     frames = FrameSelection(names, names if listed is None else frozenset(listed))
-    semantic = read_semantic_maps(masks, vocabulary, size=view_size(saved), frames=frames)
+    semantic = read_semantic_maps(
+        masks, vocabulary, size=view_size(saved), frames=frames, unlabelled=unlabelled
+    )
     return replace(saved, semantic=semantic, vocabulary=vocabulary)
 
 

@@ -107,7 +107,7 @@ def in_stage(stack: Stack, job_id: str, stage: str) -> Callable[[], bool]:
 def download_and_check(stack: Stack, name: str, job_id: str) -> int:
     """Download every listed file of ``job_id``; compare each SHA-256 with the listing (and
     with the listing of an earlier download of the same job). Returns the file count."""
-    listing = {item["path"]: item["sha256"] for item in stack.client.artifacts(job_id)}
+    listing = {item["name"]: item["sha256"] for item in stack.client.artifacts(job_id)}
     if not listing:
         raise RuntimeError(f"job {job_id} lists no artifacts")
     dest = stack.work / f"download-{name}-{time.monotonic_ns()}"

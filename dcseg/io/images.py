@@ -158,7 +158,8 @@ def header_pixels(path: Path) -> int | None:
     """How many pixels (or ``.npy`` values) decoding ``path`` gives, read from its header only.
 
     Args:
-        path: a PNG, JPEG, TIFF, OpenEXR or ``.npy`` file.
+        path: a PNG, JPEG, TIFF, OpenEXR or ``.npy`` file, or a video (one frame's pixels:
+            validation counts it once per frame it reads).
 
     Returns:
         ``width * height`` (the element count for ``.npy``), or None when the header is not
@@ -173,6 +174,12 @@ def header_pixels(path: Path) -> int | None:
         from dcseg.io.exr import exr_size  # the EXR reader imports this module
 
         size = exr_size(path)
+    elif path.suffix.lower() in (".mp4", ".mov", ".m4v"):
+        from dcseg.io.video import (
+            video_size,
+        )  # one frame's pixels (the video reader imports this module)
+
+        size = video_size(path)
     else:
         size = image_size(path)
     return None if size is None else size[0] * size[1]

@@ -15,7 +15,9 @@ Supported layouts (see each module's docstring for the details):
 * ``redwood``: Redwood / Open3D, ``image|rgb|color/`` + ``depth/`` + a ``.log`` (:mod:`.redwood`);
 * ``arkitscenes``: Apple ARKitScenes, ``lowres_wide/`` + ``lowres_wide.traj`` (:mod:`.arkitscenes`);
 * ``scannetpp``: ScanNet++ iPhone, ``rgb/`` + ``pose_intrinsic_imu.json`` (:mod:`.scannetpp`);
-* ``scannet-sens``: a raw ScanNet ``.sens`` file, given like an archive (:mod:`.sens`).
+* ``scannet-sens``: a raw ScanNet ``.sens`` file, given like an archive (:mod:`.sens`);
+* ``stray``: Stray Scanner, ``odometry.csv`` + ``camera_matrix.csv`` + ``rgb.mp4`` + ``depth/``
+  (:mod:`.stray`).
 
 Example:
     >>> capture = read_capture("scan.zip", CaptureOptions(stride=5, size=(640, 480)))
@@ -49,11 +51,19 @@ from dcseg.io.captures import (
     scannetpp,
     sens,
     sevenscenes,
+    stray,
     tum,
 )
-from dcseg.io.captures.common import FrameSpec, Listing, load_capture, read_colour, rel, select
+from dcseg.io.captures.common import (
+    FrameSpec,
+    Listing,
+    colour_size,
+    load_capture,
+    read_spec_colour,
+    rel,
+    select,
+)
 from dcseg.io.captures.plan import CaptureMeta, CapturePlan, plan_capture
-from dcseg.io.images import image_size
 from dcseg.types import Capture
 
 __all__ = [
@@ -89,6 +99,7 @@ LAYOUTS: dict[str, tuple[Callable[[Path], bool], _Lister, str]] = {
     "redwood": (redwood.matches, redwood.list_frames, "image|rgb|color/+depth/+*.log"),
     "arkitscenes": (arkitscenes.matches, arkitscenes.list_frames, "lowres_wide/+lowres_wide.traj"),
     "scannetpp": (scannetpp.matches, scannetpp.list_frames, "rgb/+pose_intrinsic_imu.json"),
+    "stray": (stray.matches, stray.list_frames, "odometry.csv+camera_matrix.csv+rgb.mp4+depth/"),
 }
 """Layout name -> (detector, frame lister, marker shown in messages), in detection order."""
 
@@ -103,7 +114,7 @@ def detect_layout(folder: Path) -> str:
         One of the names of :data:`LAYOUTS` (``"dcseg"``, ``"scannet"``, ``"replica"``,
         ``"nerfstudio"``, ``"record3d"``, ``"record3d-exr"``, ``"polycam"``, ``"7scenes"``,
         ``"tum"``, ``"colmap"``, ``"redwood"``, ``"arkitscenes"``,
-        ``"scannetpp"``).
+        ``"scannetpp"``, ``"stray"``).
 
     Raises:
         InputError: no layout's markers are found.
@@ -246,9 +257,9 @@ def read_planned(
 
 def _output_size(spec: FrameSpec, root: Path, options: CaptureOptions) -> tuple[int, int]:
     """``options.size`` or the first frame's own size; refuses upscaling, naming the file."""
-    native = image_size(spec.rgb)
+    native = colour_size(spec)
     if native is None:  # a format whose header we do not parse: decode the one frame
-        rgb = read_colour(spec.rgb, root)
+        rgb = read_spec_colour(spec, root)
         native = (int(rgb.shape[1]), int(rgb.shape[0]))
     size = options.size
     if size is None:

@@ -80,6 +80,9 @@ class FrameSpec:
         confidence: the per-pixel ARKit confidence of the depth image (levels 0, 1, 2, at the
             depth resolution), for layouts that store one; read only when
             ``CaptureOptions.min_confidence`` > 0.
+        rgb_frame: for colour stored as a video (Stray Scanner's ``rgb.mp4``), the 0-based
+            index of this frame in the video ``rgb`` (:mod:`dcseg.io.video`); None = ``rgb``
+            is an image file.
     """
 
     name: str
@@ -93,6 +96,7 @@ class FrameSpec:
     depth_k: NDArray[np.float64] | None = None
     raw_size: tuple[int, int] | None = None
     confidence: Path | None = None
+    rgb_frame: int | None = None
 
 
 @dataclass
@@ -259,7 +263,7 @@ def _load_frame(
     spec: FrameSpec, resample_depth: bool, root: Path, options: CaptureOptions
 ) -> tuple[Frame | None, list[Problem]]:
     problems: list[Problem] = []
-    rgb = _collect(problems, read_colour, spec.rgb, root)
+    rgb = _collect(problems, read_spec_colour, spec, root)
     depth = _collect(problems, read_depth, spec, root)
     if rgb is None or depth is None:
         return None, problems
@@ -291,6 +295,31 @@ def read_colour(path: Path, root: Path) -> NDArray[np.uint8]:
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
     return np.ascontiguousarray(image[:, :, :3])
+
+
+def read_spec_colour(spec: FrameSpec, root: Path) -> NDArray[np.uint8]:
+    """A frame's colour as ``[H, W, 3]`` uint8 RGB: its image, or its frame of a video."""
+    if spec.rgb_frame is None:
+        return read_colour(spec.rgb, root)
+    from dcseg.io.video import read_video_frame
+
+    return read_video_frame(spec.rgb, spec.rgb_frame, root)
+
+
+def colour_size(spec: FrameSpec) -> tuple[int, int] | None:
+    """``(width, height)`` of a frame's colour from its header (image or video container),
+    or None when the header does not say."""
+    if spec.rgb_frame is None:
+        return images.image_size(spec.rgb)
+    from dcseg.io.video import video_size
+
+    return video_size(spec.rgb)
+
+
+def colour_name(spec: FrameSpec, root: Path) -> str:
+    """How a frame's colour is named in ``Frame.files``: the file, and a video's frame."""
+    shown = rel(spec.rgb, root)
+    return shown if spec.rgb_frame is None else f"{shown}#{spec.rgb_frame}"
 
 
 def read_depth(spec: FrameSpec, root: Path) -> NDArray[np.float32]:
@@ -448,7 +477,7 @@ def _finish_frame(
     if options.depth_trunc is not None:
         depth = np.where(depth > options.depth_trunc, np.float32(0.0), depth)
     files = {
-        "rgb": rel(spec.rgb, root),
+        "rgb": colour_name(spec, root),
         "depth": rel(spec.depth, root),
         "pose": spec.pose_source,
         "intrinsics": spec.camera.source,

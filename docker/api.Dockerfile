@@ -54,7 +54,11 @@ COPY jobstore ./jobstore
 COPY service ./service
 RUN pip install -q --no-deps --no-build-isolation . && rm -rf build ./*.egg-info \
     && python -c "import sys, service.main; assert 'torch' not in sys.modules" \
-    && mkdir -p /data && chown dcseg:dcseg /data
+    && mkdir -p /data /opt/numba-cache && chown dcseg:dcseg /data /opt/numba-cache
+# numba (the exports' kernels, gsply's) caches compiled code under NUMBA_CACHE_DIR: the
+# package folders are not the dcseg user's to write. No torch here, so no `dcseg warmup`:
+# the first export of a container compiles them.
+ENV NUMBA_CACHE_DIR=/opt/numba-cache
 
 USER dcseg
 VOLUME ["/data"]

@@ -170,16 +170,14 @@ def header_pixels(path: Path) -> int | None:
             return int(np.load(path, mmap_mode="r", allow_pickle=False).size)
         except (OSError, ValueError, EOFError):
             return None
+    from dcseg.io.video import VIDEO_SUFFIXES, video_size  # both readers import this module
+
     if path.suffix.lower() == ".exr":
-        from dcseg.io.exr import exr_size  # the EXR reader imports this module
+        from dcseg.io.exr import exr_size
 
         size = exr_size(path)
-    elif path.suffix.lower() in (".mp4", ".mov", ".m4v"):
-        from dcseg.io.video import (
-            video_size,
-        )  # one frame's pixels (the video reader imports this module)
-
-        size = video_size(path)
+    elif path.suffix.lower() in VIDEO_SUFFIXES:
+        size = video_size(path)  # one frame's pixels
     else:
         size = image_size(path)
     return None if size is None else size[0] * size[1]

@@ -5,7 +5,7 @@ A capture layout may name a video frame as a frame's colour (:attr:`FrameSpec.rg
 ``index`` (0-based, in decoding order). Frames are read in capture order, so one decoder per
 file is kept open and moved forward; asking for an earlier frame reopens the file. Each decoded
 frame is counted against the current :func:`dcseg.io.images.pixel_budget` and refused above
-:data:`dcseg.io.images.MAX_PIXELS`, as images are.
+:data:`dcseg.io.images.MAX_PIXELS`, as images are. :func:`close_videos` releases the decoder.
 """
 
 from __future__ import annotations
@@ -21,7 +21,14 @@ from numpy.typing import NDArray
 from dcseg.errors import InputError
 from dcseg.io.images import MAX_PIXELS, charge_pixels, display_path
 
-__all__ = ["VIDEO_SUFFIXES", "read_video_frame", "video_frames", "video_size"]
+__all__ = [
+    "VIDEO_SUFFIXES",
+    "close_videos",
+    "open_videos",
+    "read_video_frame",
+    "video_frames",
+    "video_size",
+]
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v")
 """File suffixes read as videos."""
@@ -38,7 +45,9 @@ class _Decoder:
 
 _LOCK = threading.Lock()
 _OPEN: dict[str, _Decoder] = {}
-"""At most one open decoder, the last file read (captures are read one at a time)."""
+"""Open decoders by file, the least recently used first."""
+MAX_OPEN = 4
+"""At most this many videos stay open (captures read at once, e.g. by the API and a worker)."""
 
 
 def _open(path: Path, shown: str) -> cv2.VideoCapture:
@@ -106,19 +115,38 @@ def read_video_frame(path: Path, index: int, root: Path | None = None) -> NDArra
     return np.ascontiguousarray(frame[:, :, 2::-1], dtype=np.uint8)
 
 
+def open_videos(under: Path | None = None) -> list[Path]:
+    """The videos in folder ``under`` (None = any) whose decoder is open."""
+    root = None if under is None else under.resolve()
+    with _LOCK:
+        return [d.path for d in _OPEN.values() if root is None or d.path.is_relative_to(root)]
+
+
+def close_videos(under: Path | None = None) -> None:
+    """Release the open decoders of videos in folder ``under`` (None = all), so their files
+    may be deleted and their space freed (:func:`dcseg.io.captures.list_capture` calls this
+    for its capture when its block ends)."""
+    root = None if under is None else under.resolve()
+    with _LOCK:
+        for key in [k for k, d in _OPEN.items() if root is None or d.path.is_relative_to(root)]:
+            _OPEN.pop(key).capture.release()
+
+
 def _decoder(path: Path, index: int, shown: str) -> _Decoder:
     """The open decoder of ``path`` positioned at or before ``index`` (reopened if needed)."""
     try:
         stat = path.stat()
     except OSError:
         raise InputError.single(shown, "missing") from None
-    key = f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}"  # a rewritten file reopens
-    decoder = _OPEN.get(key)
-    if decoder is not None and decoder.next_index <= index:
-        return decoder
-    for old in _OPEN.values():
-        old.capture.release()
-    _OPEN.clear()
-    decoder = _Decoder(path, _open(path, shown))
-    _OPEN[key] = decoder
+    resolved = path.resolve()
+    key = f"{resolved}:{stat.st_size}:{stat.st_mtime_ns}"  # a rewritten file reopens
+    decoder = _OPEN.pop(key, None)
+    if decoder is not None and decoder.next_index > index:
+        decoder.capture.release()
+        decoder = None
+    if decoder is None:
+        decoder = _Decoder(resolved, _open(path, shown))
+    _OPEN[key] = decoder  # the most recently used last
+    while len(_OPEN) > MAX_OPEN:
+        _OPEN.pop(next(iter(_OPEN))).capture.release()
     return decoder

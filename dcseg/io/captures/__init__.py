@@ -64,6 +64,7 @@ from dcseg.io.captures.common import (
     select,
 )
 from dcseg.io.captures.plan import CaptureMeta, CapturePlan, plan_capture
+from dcseg.io.video import close_videos
 from dcseg.types import Capture
 
 __all__ = [
@@ -176,7 +177,15 @@ def list_capture(
     Raises:
         InputError: the path is missing, not a capture, or its layout cannot be listed.
     """
-    path = Path(path)
+    with _listed(Path(path), options) as listed:
+        try:
+            yield listed
+        finally:  # a video decoder holds its file open (an archive's temporary copy)
+            close_videos(listed.folder)
+
+
+@contextmanager
+def _listed(path: Path, options: CaptureOptions) -> Iterator[CaptureListing]:
     if path.is_dir():
         yield _list_folder(path, options, str(path))
         return

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
+from dcseg.io import video
 from dcseg.io.captures import detect_layout, read_capture, read_planned
 from dcseg.io.images import write_image
 from dcseg.types import Intrinsics
@@ -116,6 +117,7 @@ def test_video_frames_follow_the_odometry_rows(tmp_path: Path) -> None:
     for frame, rgb in zip(capture.frames, scene.rgb, strict=True):
         assert np.abs(frame.rgb.astype(int) - rgb.astype(int)).mean() < 6  # mp4v is lossy
     assert capture.frames[3].files["rgb"] == "rgb.mp4#3"
+    assert not video.open_videos(root)  # released when the listing's block ends
     for options in (CaptureOptions(stride=2), CaptureOptions(stride=3, max_frames=2)):
         strided = read_capture(root, options)  # skips forward in the open video
         for frame in strided.frames:

@@ -120,7 +120,14 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     count = video_frames(root / VIDEO, root)
     _report_beyond(rows, count, listing)
     for index, row in enumerate(rows[:count]):
-        add_if_present(listing, _spec(root, row, root / VIDEO, camera, index), root)
+        spec = _spec(root, row, root / VIDEO, camera, index)
+        if spec.depth.is_file():
+            listing.specs.append(spec)
+        else:
+            reason = (
+                f"missing (frame {index} of {VIDEO}, odometry.csv:line {row.line}, has no depth)"
+            )
+            listing.unlist(spec.name, [Problem(rel(spec.depth, root), reason)])
     return listing
 
 

@@ -269,8 +269,12 @@ def test_malformed_files_are_named(rgbd_scene: RgbdScene, tmp_path: Path) -> Non
     assert problems(root) == ["depth/000003.png: missing (colour rgb/000003.png has no depth)"]
 
 
-def test_a_corrupt_video_is_named(tmp_path: Path) -> None:
+def test_a_corrupt_video_and_a_missing_depth_are_named(tmp_path: Path) -> None:
     root = write_stray(flat_scene(n=2), tmp_path, video=True)
+    (root / "depth" / "000001.png").unlink()
+    assert problems(root) == [
+        "depth/000001.png: missing (frame 1 of rgb.mp4, odometry.csv:line 3, has no depth)"
+    ]
     (root / "rgb.mp4").write_bytes(b"not a video at all")
     assert problems(root) == ["rgb.mp4: cannot open video (corrupt, or a codec FFmpeg lacks)"]
 

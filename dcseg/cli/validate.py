@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from dcseg.cli._options import add_groups, capture_options
+from dcseg.cli._options import add_flags, add_groups, build, capture_options, given
 
 
 def register(subparsers: Any) -> None:
@@ -34,6 +34,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--gt", type=Path, help="ground-truth PLY (x y z label [instance])")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     add_groups(parser, "capture")
+    add_flags(parser.add_argument_group("class maps"), "segment", only=("unlabelled_id",))
     parser.set_defaults(run=run)
 
 
@@ -51,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
         vocabulary=args.vocabulary,
         ground_truth=args.gt,
     )
-    report = validate_inputs(paths, capture_options(args))
+    unlabelled = build("fast", {"segment": given(args, "segment")}).pipeline.assign.unlabelled_id
+    report = validate_inputs(paths, capture_options(args), unlabelled=unlabelled)
     if args.json:
         problems = [{"path": p.path, "reason": p.reason} for p in report.problems]
         out = {"ok": report.ok, "summary": report.summary, "problems": problems}

@@ -56,7 +56,11 @@ class ValidationReport:
 
 
 def validate_inputs(
-    paths: RunInputs, options: CaptureOptions | None = None, *, max_pixels: int | None = None
+    paths: RunInputs,
+    options: CaptureOptions | None = None,
+    *,
+    max_pixels: int | None = None,
+    unlabelled: int | None = None,
 ) -> ValidationReport:
     """Read every input, cross-check masks against frames, and summarise.
 
@@ -66,6 +70,8 @@ def validate_inputs(
         max_pixels: the most pixels all decoded images (colour, depth, masks, class maps) may
             have together; summed from their headers before anything is decoded, and enforced
             on every decode. None = no total limit (each image is still capped).
+        unlabelled: a class-map value that means no class (the job option
+            ``segment.unlabelled_id``), so it is neither range-checked nor counted as a class.
 
     Returns:
         A report whose ``problems`` is empty exactly when the inputs are usable together.
@@ -84,7 +90,7 @@ def validate_inputs(
                 return ValidationReport(summary, (*problems, over))
         with pixel_budget(max_pixels):
             frame_sizes = _check_capture(listed, options, problems, summary)
-            _check_masks(paths, frame_sizes, problems, summary)
+            _check_masks(paths, frame_sizes, problems, summary, unlabelled)
     return ValidationReport(summary, tuple(problems))
 
 
@@ -224,6 +230,7 @@ def _check_masks(
     frame_sizes: FrameSizes | None,
     problems: list[Problem],
     summary: dict[str, Any],
+    unlabelled: int | None = None,
 ) -> None:
     if paths.agnostic_masks is not None:
         agnostic = _attempt(problems, lambda: read_agnostic_masks(_need(paths.agnostic_masks)))
@@ -234,7 +241,7 @@ def _check_masks(
                 **summarise_agnostic(agnostic),
             }
     if paths.semantic_masks is not None or paths.vocabulary is not None:
-        vocabulary = _check_semantic(paths, problems, summary, frame_sizes)
+        vocabulary = _check_semantic(paths, problems, summary, frame_sizes, unlabelled)
     else:
         vocabulary = None
     if paths.ground_truth is not None:
@@ -272,6 +279,7 @@ def _check_semantic(
     problems: list[Problem],
     summary: dict[str, Any],
     frame_sizes: FrameSizes | None,
+    unlabelled: int | None = None,
 ) -> Vocabulary | None:
     if paths.vocabulary is None:
         problems.append(Problem("--vocabulary", "semantic masks need a vocabulary file"))
@@ -282,7 +290,7 @@ def _check_semantic(
     tally = _SemanticTally(vocabulary)
     read_problems: list[Problem] = []
     try:
-        for item in iter_semantic_maps(paths.semantic_masks, vocabulary):
+        for item in iter_semantic_maps(paths.semantic_masks, vocabulary, unlabelled=unlabelled):
             if isinstance(item, Problem):
                 read_problems.append(item)
                 continue

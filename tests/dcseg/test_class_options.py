@@ -26,6 +26,7 @@ from dcseg.stages.base import StageRun
 from dcseg.stages.segment import _with_semantic
 from dcseg.types import Vocabulary
 from tests.dcseg.assign.surfaces import RADIUS, patch
+from tests.dcseg.io.layouts import make_scene, write_scannet
 from tests.dcseg.test_segment_scene import N, scene
 
 SCANNET = Vocabulary(("unannotated", "wall", "floor", "chair"))
@@ -200,3 +201,44 @@ def test_stuff_classes_decide_whether_a_surface_is_one_region() -> None:
     class, three object instances with the default stuff classes."""
     assert rug_regions(["rug"]) == 1
     assert rug_regions(["wall", "floor", "ceiling"]) == 3
+
+
+def scannet_capture(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """A ScanNet export of 16 x 12 frames with ``label-filt`` maps: the left half
+    unannotated (0), the right half chair (3)."""
+    capture = write_scannet(make_scene(n=2), tmp_path / "scan")
+    masks = tmp_path / "label-filt"
+    for i in range(2):
+        write_image(
+            masks / f"{i}.png", np.repeat(np.array([[0, 3]], np.uint16), 8, axis=1)[[0] * 12]
+        )
+    vocabulary = tmp_path / "vocabulary.txt"
+    write_vocabulary(vocabulary, SCANNET)
+    return capture, masks, vocabulary
+
+
+def test_validate_counts_the_unlabelled_id_as_no_class(tmp_path: Path) -> None:
+    from dcseg.io.validate import validate_inputs
+
+    capture, masks, vocabulary = scannet_capture(tmp_path)
+    inputs = RunInputs(capture, semantic_masks=masks, vocabulary=vocabulary)
+    plain = validate_inputs(inputs).summary["semantic_masks"]
+    assert plain["classes_present"] == ["unannotated", "chair"]
+    assert plain["labelled_fraction"] == 1.0
+    report = validate_inputs(inputs, unlabelled=0)
+    assert report.ok
+    summary = report.summary["semantic_masks"]
+    assert summary["classes_present"] == ["chair"] and summary["labelled_fraction"] == 0.5
+
+
+def test_dcseg_validate_takes_the_unlabelled_id(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from dcseg.cli import main
+
+    capture, masks, vocabulary = scannet_capture(tmp_path)
+    given = [str(capture), "--semantic-masks", str(masks), "--vocabulary", str(vocabulary)]
+    assert main(["validate", *given, "--unlabelled-id", "0", "--json"]) == 0
+    assert '"labelled_fraction": 0.5' in capsys.readouterr().out
+    with pytest.raises(SystemExit, match=r"--unlabelled-id \(options.segment.unlabelled_id\)"):
+        main(["validate", *given, "--unlabelled-id", "70000"])

@@ -10,6 +10,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict
+from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 logger = logging.getLogger(__name__)
@@ -113,6 +114,22 @@ async def _validation_error(request: Request, exc: Exception) -> JSONResponse:
     )
 
 
+async def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """The database refused or dropped the connection (restarting, failing over, overloaded):
+    503 with ``Retry-After``, which clients retry, instead of a 500."""
+    logger.warning("database unavailable on %s %s: %s", request.method, request.url.path, exc)
+    state = getattr(request.app.state, "dcseg", None)
+    wait = state.settings.retry_after_s if state is not None else 2
+    return problem_response(
+        request,
+        503,
+        "the database is unavailable; the request was not completed, retry after Retry-After",
+        slug="database-unavailable",
+        title="Database unavailable",
+        headers={"Retry-After": str(wait)},
+    )
+
+
 async def _server_error(request: Request, exc: Exception) -> JSONResponse:
     logger.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
     return problem_response(request, 500, "internal error; the request was not completed")
@@ -123,6 +140,7 @@ def install(app: FastAPI) -> None:
     app.add_exception_handler(ApiProblem, _api_problem)
     app.add_exception_handler(StarletteHTTPException, _http_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(OperationalError, _database_unavailable)
     app.add_exception_handler(Exception, _server_error)
 
 

@@ -68,3 +68,20 @@ def test_not_ready_is_a_problem(client, monkeypatch):
     monkeypatch.setattr(state.store, "ping", broken)
     body = assert_problem(client.get("/readyz"), 503)
     assert body["checks"]["database"].startswith("error")
+
+
+def test_an_unreachable_database_is_a_503_to_retry(client, monkeypatch):
+    """A refused or dropped database connection (PostgreSQL restarting) answers 503 with
+    Retry-After, which clients retry, not a 500."""
+    from sqlalchemy.exc import OperationalError
+
+    state = state_of(client)
+
+    def refused(*args: object, **kwargs: object) -> None:
+        raise OperationalError("SELECT 1", {}, ConnectionRefusedError("connection refused"))
+
+    monkeypatch.setattr(state.store, "get_job", refused)
+    response = client.get("/v1/jobs/00000000-0000-0000-0000-000000000000", headers=AUTH_A)
+    body = assert_problem(response, 503)
+    assert body["type"].endswith("database-unavailable")
+    assert response.headers["Retry-After"] == str(state.settings.retry_after_s)

@@ -1,6 +1,8 @@
 # dcseg GPU worker: CUDA, torch (CUDA build) and gsplat through the `cuda` extra.
-# Build from the repository root:
-#   docker build -f docker/worker.Dockerfile -t dcseg-worker .
+# Build from the repository root on a host that reaches the CUDA base image's registry:
+#   bash docker/build.sh gpu        # DCSEG_CUDA_IMAGE=<image> for another base
+# (build.sh stops with an explanation where the base is neither local nor pullable, as on
+# machines without Docker Hub; the CPU images need no registry.)
 # Match TORCH_INDEX to the CUDA of the base image; gsplat compiles its kernels against it
 # (hence the -devel image with nvcc), for TORCH_CUDA_ARCH_LIST.
 ARG CUDA_IMAGE=nvidia/cuda:12.4.1-cudnn-devel-ubuntu22.04
@@ -50,9 +52,12 @@ RUN pip install ".[cuda]" "psycopg[binary]>=3.1"
 # host's, numba compiles again on first use and adds those kernels to the same folder.
 ENV NUMBA_CACHE_DIR=/opt/numba-cache
 RUN groupadd --system dcseg && useradd --system --gid dcseg --home-dir /app dcseg \
-    && mkdir -p /data /opt/numba-cache && chown dcseg:dcseg /data /opt/numba-cache
+    && mkdir -p /data /scratch /opt/numba-cache && chown dcseg:dcseg /data /scratch /opt/numba-cache
 USER dcseg
 RUN out="$(dcseg warmup)" && printf "%s\n" "$out" | tail -n 2
-VOLUME ["/data"]
+VOLUME ["/data", "/scratch"]
+# healthy = the Celery node answers a ping through the broker
+HEALTHCHECK --interval=30s --timeout=15s --start-period=30s --retries=3 \
+    CMD ["sh", "-c", "celery -A worker.celery_app inspect ping -d celery@$HOSTNAME --timeout 10 >/dev/null"]
 # One worker process per GPU; CUDA initialises in the task, never in the parent.
 CMD ["dcseg", "worker", "--queues", "gpu", "--concurrency", "1"]

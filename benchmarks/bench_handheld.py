@@ -141,8 +141,11 @@ def ensure_scene(scene: Path, cfg: SynthConfig) -> None:
         "pose_error": {"deg": cfg.pose_error_deg, "m": cfg.pose_error_m},
         "motion_blur_px": cfg.motion_blur_px,
         "depth_sigma": cfg.level().depth_sigma,
+        "error_model": cfg.segmenter(),
     }
     found = {key: made.get(key) for key in wanted}
+    if "error_model" not in made:  # scenes made before the generators: the level's masks
+        found["error_model"] = "realistic" if made["noise"] == "realistic" else None
     found["depth_sigma"] = made["noise_level"]["depth_sigma"]
     if found != wanted:
         raise SystemExit(f"{scene} was made with {found}, this variant needs {wanted}")

@@ -61,6 +61,10 @@ from dcseg.types import GroundTruth  # noqa: E402
 TUNING = (0, 1, 2)
 HELDOUT = (3, 4)
 NOISES = ("clean", "default", "heavy", "realistic")
+GENERATORS = ("detector", "lowres")
+"""Segmenter-error generators (``dcseg synth --error-model``) scored like noise levels: masks
+from the generator, depth noise of the ``default`` level. ``realistic`` (a noise level) is the
+third generator (:mod:`dcseg.synth.errors`)."""
 PROTOCOL = EvaluateConfig()
 """3D protocol (evaluation.md): the nearest Gaussian above ``min_opacity`` (0.05) within
 ``max_distance`` (5 cm)."""
@@ -75,12 +79,14 @@ def ensure_run(work: Path, noise: str, layout: int, args: argparse.Namespace) ->
     root = run_dir(work, noise, layout)
     scene = root / "scene"
     width, height = args.size
+    generator = noise if noise in GENERATORS else ""
     synth = SynthConfig(
         seed=layout,
         frames=args.frames,
         width=width,
         height=height,
-        noise=noise,
+        noise="default" if generator else noise,
+        error_model=generator,
         **synth_fields(args.synth),
     )
     start = time.perf_counter()
@@ -107,7 +113,7 @@ def synth_fields(items: Sequence[str]) -> dict[str, Any]:
     """``--synth`` ``KEY=JSON`` items as :class:`SynthConfig` fields (handheld faults:
     ``pose_error_deg``, ``pose_error_m``, ``motion_blur_px``, ``depth_sigma``)."""
     fields = dict(key_value(item) for item in items)
-    for key in fields.keys() & {"seed", "frames", "width", "height", "noise"}:
+    for key in fields.keys() & {"seed", "frames", "width", "height", "noise", "error_model"}:
         raise SystemExit(f"--synth {key}: set by the layout, --frames, --size or --noise")
     return fields
 
@@ -361,7 +367,7 @@ def _margins(rows: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]]:
 def summarise(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Per noise level and group (tuning / held out): mean, spread, range of every metric."""
     out: dict[str, Any] = {}
-    for noise in NOISES:
+    for noise in (*NOISES, *GENERATORS):
         for group in ("tuning", "heldout"):
             chosen = [r for r in rows if r["noise"] == noise and r["group"] == group]
             if not chosen:
@@ -461,7 +467,13 @@ def parser() -> argparse.ArgumentParser:
         default=[],
         help="summarise the runs of earlier --out files (scored in parallel) instead of scoring",
     )
-    p.add_argument("--noise", nargs="+", default=list(NOISES), choices=NOISES)
+    p.add_argument(
+        "--noise",
+        nargs="+",
+        default=list(NOISES),
+        choices=(*NOISES, *GENERATORS),
+        help="noise levels, or error generators (detector, lowres: default-level depth)",
+    )
     p.add_argument("--tuning", nargs="*", type=int, default=list(TUNING))
     p.add_argument("--heldout", nargs="*", type=int, default=list(HELDOUT))
     p.add_argument("--cluster-seeds", nargs="+", type=int, default=[0, 10])

@@ -14,6 +14,8 @@ from dcseg.cli._options import parse_size
 logger = logging.getLogger(__name__)
 
 NOISE_CHOICES = ("clean", "default", "heavy", "realistic")
+ERROR_MODEL_CHOICES = ("realistic", "detector", "lowres")
+"""The names of :data:`dcseg.synth.errors.ERROR_MODELS` (kept here: `--help` imports no numpy)."""
 
 
 def register(subparsers: Any) -> None:
@@ -37,6 +39,18 @@ def register(subparsers: Any) -> None:
         help="mask/depth noise level; realistic = consistent segmenter failures (look-alike "
         "classes, missed rare objects, coarse maps, merged and missing masks) and a larger "
         "vocabulary",
+    )
+    parser.add_argument(
+        "--error-model",
+        choices=ERROR_MODEL_CHOICES,
+        default="",
+        metavar="NAME",
+        help="make the masks with this segmenter-error generator instead of the noise level's "
+        "(which then sets the depth noise only): realistic (look-alike classes in most views, "
+        "coarse maps, merged and missing SAM masks), detector (detector boxes prompting SAM: "
+        "size/appearance confusions, fat masks bleeding into neighbours, missed small objects, "
+        "scores), lowres (1/8-resolution semantic segmenter with a confusion matrix in every "
+        "view; SAM merging same-depth neighbours, leaving objects uncovered)",
     )
     parser.add_argument(
         "--depth-sigma",
@@ -106,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
             pose_error_deg=args.pose_error_deg,
             pose_error_m=args.pose_error_m,
             motion_blur_px=args.motion_blur,
+            error_model=args.error_model,
         )
     except ValueError as exc:
         sys.stderr.write(f"dcseg synth: {exc}\n")

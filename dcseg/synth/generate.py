@@ -6,6 +6,7 @@ import logging
 import math
 import tempfile
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -18,13 +19,15 @@ from dcseg.synth.agnostic import simulate_agnostic
 from dcseg.synth.blur import MAX_BLUR_PX, blur_flow, motion_blur
 from dcseg.synth.cameras import CameraModel, orbit_poses
 from dcseg.synth.catalogue import VOCABULARY
-from dcseg.synth.failures import (
-    REALISTIC_VOCABULARY,
-    InstanceFates,
-    draw_fates,
-    realistic_agnostic,
-    realistic_semantic,
+from dcseg.synth.errors import (
+    ERROR_MODELS,
+    ErrorModel,
+    SceneTruth,
+    ViewOutput,
+    ViewTruth,
+    error_model,
 )
+from dcseg.synth.failures import REALISTIC_VOCABULARY
 from dcseg.synth.noise import NOISE_LEVELS, NoiseLevel, noisy_depth
 from dcseg.synth.render import (
     Lighting,
@@ -73,6 +76,9 @@ class SynthConfig:
             the next pose of the trajectory (:mod:`dcseg.synth.blur`), with a median blur
             length of this many pixels; depth, masks and ground truth stay sharp (a depth
             sensor's own exposure is short). 0 = sharp.
+        error_model: a generator of :data:`~dcseg.synth.errors.ERROR_MODELS` makes the masks
+            instead of the noise level (which then sets the depth noise only); "" = the
+            level's own masks (``realistic`` for the ``realistic`` level).
     """
 
     seed: int = 0
@@ -85,6 +91,7 @@ class SynthConfig:
     pose_error_deg: float = 0.0
     pose_error_m: float = 0.0
     motion_blur_px: float = 0.0
+    error_model: str = ""
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -107,6 +114,16 @@ class SynthConfig:
             raise ValueError(
                 f"motion_blur_px must be between 0 and {MAX_BLUR_PX:g}, got {self.motion_blur_px}"
             )
+        if self.error_model and self.error_model not in ERROR_MODELS:
+            raise ValueError(
+                f"error_model must be one of {sorted(ERROR_MODELS)}, got {self.error_model!r}"
+            )
+
+    def segmenter(self) -> str | None:
+        """The error generator that makes the masks, or None for the level's per-view noise."""
+        if self.error_model:
+            return self.error_model
+        return "realistic" if NOISE_LEVELS[self.noise].failures is not None else None
 
     def level(self) -> NoiseLevel:
         """The noise level, with ``depth_sigma`` when it is set."""
@@ -114,9 +131,8 @@ class SynthConfig:
         return level if self.depth_sigma is None else replace(level, depth_sigma=self.depth_sigma)
 
     def vocabulary(self) -> Vocabulary:
-        """The class names: the realistic level adds look-alikes after the scene's classes."""
-        failures = NOISE_LEVELS[self.noise].failures
-        return Vocabulary(VOCABULARY if failures is None else REALISTIC_VOCABULARY)
+        """The class names: the error generators add look-alikes after the scene's classes."""
+        return Vocabulary(VOCABULARY if self.segmenter() is None else REALISTIC_VOCABULARY)
 
 
 @dataclass(frozen=True)
@@ -135,6 +151,8 @@ class SynthScene:
         gt_instance: per frame ``[H, W]`` int32 instance id, -1 = none.
         ground_truth: labelled points on the visible surfaces (voxel-downsampled).
         timings: seconds spent per stage.
+        mask_scores: per frame, one confidence per agnostic mask, or None where the error
+            generator gives none.
     """
 
     config: SynthConfig
@@ -148,6 +166,7 @@ class SynthScene:
     gt_instance: tuple[NDArray[np.int32], ...]
     ground_truth: GroundTruth
     timings: dict[str, float] = field(default_factory=dict)
+    mask_scores: tuple[tuple[float, ...] | None, ...] = ()
 
     def __post_init__(self) -> None:
         for arrays in (self.gt_depth, self.gt_semantic, self.gt_instance):
@@ -217,6 +236,7 @@ def generate_scene(cfg: SynthConfig) -> SynthScene:
         gt_instance=tuple(extras["instance"]),
         ground_truth=gt,
         timings=timings,
+        mask_scores=tuple(extras["scores"]),
     )
 
 
@@ -264,32 +284,88 @@ def _simulate_frames(
     level = cfg.level()
     by_id = {inst.id: inst for inst in instances}
     normals = _part_normals(cfg, instances)
-    fates = None
-    if level.failures is not None:
-        fates = draw_fates(by_id, level.failures, _rng(cfg, _FATES))
     lookup = instance_lookup(instances)
     k = camera.intrinsics()
+    maps = [ground_truth_maps(view.body, lookup) for view in views]
+    segmenter = _Segmenter.start(cfg, by_id, normals, views, maps, poses, k.matrix())
     frames: list[Frame] = []
     extras: dict[str, list[Any]] = {
-        key: [] for key in ("agnostic", "semantic_map", "depth", "semantic", "instance")
+        key: [] for key in ("agnostic", "semantic_map", "depth", "semantic", "instance", "scores")
     }
-    for i, (view, c2w) in enumerate(zip(views, poses, strict=True)):
+    for i, (view, c2w, (inst_map, class_map)) in enumerate(zip(views, poses, maps, strict=True)):
         name = f"frame_{i:04d}"
-        inst_map, class_map = ground_truth_maps(view.body, lookup)
         xyz = backproject(view.depth, k.matrix(), c2w)
-        dense, classes = _segmenter_output(
-            cfg, i, (inst_map, class_map, xyz), by_id, normals, fates
-        )
+        out = segmenter.view(cfg, i, ViewTruth(inst_map, class_map, xyz, view.depth))
         depth = noisy_depth(view.depth, level, _rng(cfg, _DEPTH, i))
         pose = perturbed_pose(c2w, cfg.pose_error_deg, cfg.pose_error_m, _rng(cfg, _POSE, i))
         rgb = _blurred(cfg, view, k.matrix(), poses, i)
         frames.append(Frame(name, rgb, depth, k, pose))
-        extras["agnostic"].append(masks_from_dense(name, dense))
-        extras["semantic_map"].append(SemanticMap(name, classes))
+        extras["agnostic"].append(masks_from_dense(name, out.masks))
+        extras["scores"].append(out.scores)
+        extras["semantic_map"].append(SemanticMap(name, out.classes))
         extras["depth"].append(view.depth)
         extras["semantic"].append(class_map)
         extras["instance"].append(inst_map)
     return frames, extras
+
+
+@dataclass(frozen=True)
+class _Segmenter:
+    """The simulated segmenter of a scene: an error generator with its drawn fates, or the
+    noise level's per-view noise (``model`` None)."""
+
+    scene: SceneTruth
+    model: ErrorModel | None
+    fates: Any
+
+    @classmethod
+    def start(
+        cls,
+        cfg: SynthConfig,
+        by_id: dict[int, SceneInstance],
+        normals: dict[int, NDArray[np.float64]],
+        views: list[RenderedView],
+        maps: list[tuple[NDArray[np.int32], NDArray[np.int32]]],
+        poses: NDArray[np.float64],
+        k: NDArray[np.float64],
+    ) -> _Segmenter:
+        name = cfg.segmenter()
+        if name is None:
+            return cls(SceneTruth(by_id, normals, {}), None, None)
+        points = (
+            (ids, backproject(view.depth, k, c2w))
+            for view, (ids, _), c2w in zip(views, maps, poses, strict=True)
+        )
+        scene = SceneTruth(by_id, normals, instance_extents(points))
+        model = error_model(name)
+        return cls(scene, model, model.prepare(scene, _rng(cfg, _FATES)))
+
+    def view(self, cfg: SynthConfig, i: int, truth: ViewTruth) -> ViewOutput:
+        """View ``i``'s simulated class-agnostic masks and class map."""
+        agnostic_rng, semantic_rng = _rng(cfg, _AGNOSTIC, i), _rng(cfg, _SEMANTIC, i)
+        if self.model is None:
+            ids, level, instances = truth.instance_map, cfg.level(), self.scene.instances
+            normals = self.scene.part_normals
+            dense = simulate_agnostic(ids, truth.xyz, instances, normals, level, agnostic_rng)
+            classes = simulate_semantic(ids, truth.class_map, instances, level, semantic_rng)
+            return ViewOutput(dense, classes)
+        return self.model.view(truth, self.scene, self.fates, agnostic_rng, semantic_rng)
+
+
+def instance_extents(
+    views: Iterable[tuple[NDArray[np.int32], NDArray[np.float64]]], stride: int = 4
+) -> dict[int, float]:
+    """Per instance id, the diagonal (m) of the 5-95 % box of its points over all views
+    (``(instance map, xyz)`` per view; every ``stride``-th pixel)."""
+    kept = [(i[::stride, ::stride].ravel(), x[::stride, ::stride].reshape(-1, 3)) for i, x in views]
+    ids = np.concatenate([i for i, _ in kept])
+    xyz = np.concatenate([x for _, x in kept])
+    out: dict[int, float] = {}
+    for inst_id in (int(i) for i in np.unique(ids) if i >= 0):
+        points = xyz[ids == inst_id]
+        lo, hi = np.percentile(points, [5, 95], axis=0)
+        out[inst_id] = float(np.linalg.norm(hi - lo))
+    return out
 
 
 def _blurred(
@@ -301,27 +377,6 @@ def _blurred(
         return view.rgb
     other = poses[i + 1] if i + 1 < len(poses) else poses[i - 1]
     return motion_blur(view.rgb, blur_flow(view.depth, k, poses[i], other), cfg.motion_blur_px)
-
-
-def _segmenter_output(
-    cfg: SynthConfig,
-    i: int,
-    maps: tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.float64]],
-    by_id: dict[int, SceneInstance],
-    normals: dict[int, NDArray[np.float64]],
-    fates: InstanceFates | None,
-) -> tuple[NDArray[np.bool_], NDArray[np.int32]]:
-    """View ``i``'s simulated class-agnostic masks ``[M, H, W]`` and class map ``[H, W]``."""
-    inst_map, class_map, xyz = maps
-    level = cfg.level()
-    agnostic_rng, semantic_rng = _rng(cfg, _AGNOSTIC, i), _rng(cfg, _SEMANTIC, i)
-    if level.failures is None or fates is None:
-        dense = simulate_agnostic(inst_map, xyz, by_id, normals, level, agnostic_rng)
-        return dense, simulate_semantic(inst_map, class_map, by_id, level, semantic_rng)
-    failures = level.failures
-    dense = realistic_agnostic(inst_map, xyz, by_id, normals, level, failures, agnostic_rng)
-    classes = realistic_semantic(inst_map, class_map, by_id, fates, level, failures, semantic_rng)
-    return dense, classes
 
 
 def perturbed_pose(

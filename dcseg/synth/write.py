@@ -25,7 +25,9 @@ def write_scene(scene: SynthScene, out: Path) -> Path:
     Layout::
 
         capture.json, rgb/<stem>.png, depth/<stem>.png   dcseg capture manifest
-        masks/agnostic/<stem>.json                       simulated SAM output (COCO RLE)
+        masks/agnostic/<stem>.json                       simulated SAM output (COCO RLE;
+                                                         with a ``score`` per mask where the
+                                                         error generator gives one)
         masks/semantic/<stem>.png                        simulated class maps (255 = none)
         vocabulary.txt                                   class names, one per line
         gt/points.ply                                    x y z label instance
@@ -46,8 +48,12 @@ def write_scene(scene: SynthScene, out: Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     write_capture(scene.capture, out)
     n_classes = len(scene.vocabulary)
-    for masks, semantic in zip(scene.agnostic, scene.semantic, strict=True):
-        write_agnostic_json(out / "masks" / "agnostic" / f"{masks.name}.json", masks)
+    scores = scene.mask_scores or (None,) * len(scene.agnostic)
+    for masks, semantic, score in zip(scene.agnostic, scene.semantic, scores, strict=True):
+        path = out / "masks" / "agnostic" / f"{masks.name}.json"
+        write_agnostic_json(path, masks)
+        if score is not None:
+            _add_scores(path, score)
         write_semantic_png(out / "masks" / "semantic" / f"{semantic.name}.png", semantic, n_classes)
     write_vocabulary(out / "vocabulary.txt", scene.vocabulary)
     write_ground_truth_ply(out / "gt" / "points.ply", scene.ground_truth)
@@ -57,6 +63,16 @@ def write_scene(scene: SynthScene, out: Path) -> Path:
     path.write_text(json.dumps(scene_summary(scene, timings), indent=1) + "\n", encoding="utf-8")
     logger.info("wrote %d frames to %s", len(scene.capture), out)
     return path
+
+
+def _add_scores(path: Path, scores: tuple[float, ...]) -> None:
+    """Give each record of a written mask file its detector ``score`` (in mask order)."""
+    records = json.loads(path.read_text(encoding="utf-8"))
+    if len(records) != len(scores):
+        raise ValueError(f"{path}: {len(records)} masks but {len(scores)} scores")
+    for record, score in zip(records, scores, strict=True):
+        record["score"] = round(float(score), 4)
+    path.write_text(json.dumps(records), encoding="utf-8")
 
 
 def _write_gt_maps(scene: SynthScene, folder: Path) -> None:
@@ -79,6 +95,7 @@ def scene_summary(scene: SynthScene, timings: dict[str, float]) -> dict[str, Any
     return {
         "seed": cfg.seed,
         "noise": cfg.noise,
+        "error_model": cfg.segmenter(),
         "size": [cfg.width, cfg.height],
         "supersample": cfg.supersample,
         "frames": len(scene.capture),

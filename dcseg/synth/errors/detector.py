@@ -13,8 +13,9 @@ Mechanism (independent of :mod:`dcseg.synth.failures`):
   object's median depth, grown from the object (so it bleeds into neighbours at that depth),
   dilated by ``dilate_px`` at 1/``mask_factor`` resolution (coarse, fat boundaries);
 * walls and the floor come from the ``wall. floor.`` prompts, coarse but right;
-* the class map paints the masks in rising confidence (the surest on top); pixels no mask
-  covers stay unlabelled (detectors abstain). Masks carry their confidence as ``score``.
+* the class map paints the masks largest first (smaller detections on top, as panoptic
+  merges of instance masks do); pixels no mask covers stay unlabelled (detectors abstain).
+  Masks carry their confidence as ``score``.
 """
 
 from __future__ import annotations
@@ -233,12 +234,13 @@ class DetectorModel:
         n_structure: int,
         factor_shape: tuple[int, int, int],
     ) -> ViewOutput:
-        """Upsample, paint the class map in rising confidence (walls and floor first), drop
-        tiny masks."""
+        """Upsample, paint the class map (walls and floor first, then the detections largest
+        first), drop tiny masks."""
         factor, h, w = factor_shape
         big = [upsample(m, factor, (h, w)) for m in masks]
         classes = np.full((h, w), -1, dtype=np.int32)
-        detections = np.argsort(scores[n_structure:], kind="stable") + n_structure
+        areas = [-int(m.sum()) for m in masks[n_structure:]]
+        detections = np.argsort(areas, kind="stable") + n_structure
         for i in [*range(n_structure), *detections.tolist()]:
             classes[big[i]] = labels[i]
         kept, kept_scores = keep_large(big, scores)

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from dcseg.errors import InputError
 from dcseg.types import GroundTruth
 
-__all__ = ["read_ground_truth", "write_ground_truth_ply"]
+__all__ = ["read_ground_truth", "read_ground_truth_points", "write_ground_truth_ply"]
 
 logger = logging.getLogger(__name__)
 
@@ -52,6 +52,12 @@ def read_ground_truth(path: Path, n_classes: int) -> GroundTruth:
         raw = _int_column(vertex, "instance", shown)
         instances = np.where(raw < 0, -1, raw)
     return GroundTruth(points, labels, instances, str(path))
+
+
+def read_ground_truth_points(path: Path) -> NDArray[np.float64]:
+    """The ``[N, 3]`` points of a ground-truth PLY, checked as :func:`read_ground_truth` checks
+    them, without reading its labels (the surface it samples, for geometry metrics)."""
+    return _points(_vertex_data(path, path.name), path.name)
 
 
 def write_ground_truth_ply(path: Path, gt: GroundTruth) -> None:

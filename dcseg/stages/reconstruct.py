@@ -90,9 +90,9 @@ def _geometry(gaussians: Any, ground_truth: Path) -> dict[str, Any]:
     """:func:`dcseg.evaluate.surface.geometry_report` of ``gaussians`` against the ground
     truth's points (their labels play no part)."""
     from dcseg.evaluate.surface import geometry_report
-    from dcseg.io.ground_truth import read_ground_truth
+    from dcseg.io.ground_truth import read_ground_truth_points
 
-    surface = read_ground_truth(ground_truth, 0).points
+    surface = read_ground_truth_points(ground_truth)
     means = gaussians.means.detach().cpu().numpy()
     opacities = gaussians.opacities().detach().cpu().numpy()
     report = geometry_report(means, opacities, surface)

@@ -10,7 +10,11 @@ import plyfile
 import pytest
 
 from dcseg.errors import InputError
-from dcseg.io.ground_truth import read_ground_truth, write_ground_truth_ply
+from dcseg.io.ground_truth import (
+    read_ground_truth,
+    read_ground_truth_points,
+    write_ground_truth_ply,
+)
 from dcseg.types import GroundTruth
 
 
@@ -61,6 +65,18 @@ def test_read_without_instance(tmp_path: Path) -> None:
     gt = read_ground_truth(path, n_classes=10)
     assert gt.instances is None
     assert gt.labels.tolist() == [0, 1, 2, -1, 9]
+
+
+def test_points_alone_are_read_without_a_word_about_labels(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = write_ply(tmp_path / "gt.ply", vertices(), text=False)
+    with caplog.at_level(logging.INFO, logger="dcseg.io.ground_truth"):
+        points = read_ground_truth_points(path)
+    assert caplog.text == ""
+    np.testing.assert_array_equal(points, read_ground_truth(path, 3).points)
+    with pytest.raises(InputError, match="not found"):
+        read_ground_truth_points(tmp_path / "missing.ply")
 
 
 def test_write_round_trip(tmp_path: Path) -> None:

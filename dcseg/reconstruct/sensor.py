@@ -45,15 +45,18 @@ LUMA = np.array([0.299, 0.587, 0.114])
 
 
 def sensor_report(
-    frames: Sequence[Frame], drop_flying: bool, refine_poses: bool = False
+    frames: Sequence[Frame], drop_flying: bool, refine_poses: bool = False, median_window: int = 1
 ) -> dict[str, Any]:
-    """The detected effects of ``frames`` (module docstring); ``drop_flying``, ``refine_poses``:
-    whether the reconstruction drops flying pixels and refines poses (as configured)."""
+    """The detected effects of ``frames`` (module docstring); ``drop_flying``, ``refine_poses``,
+    ``median_window``: whether the reconstruction drops flying pixels, refines poses and the
+    depth filter's window (1 = off), as configured."""
     if not frames:
         return {}
     sample = _spread(frames, MAX_FRAMES)
     depth = depth_effects(sample, drop_flying)
     a = depth["noise"]["a_at_1m"] or 0.0
+    # the filter runs on the views whose own measured noise is above 0
+    depth["median_filter"] = {"window": median_window, "applied": median_window > 1 and a > 0}
     return {
         "frames_measured": len(sample),
         "depth": depth,
@@ -201,10 +204,11 @@ def log_report(report: dict[str, Any]) -> None:
         100 * (depth["missing_fraction"] or 0.0),
     )
     log.info(
-        "depth edges: %.1f %% flying pixels (%.2f %% of valid depth), %s",
+        "depth edges: %.1f %% flying pixels (%.2f %% of valid depth), %s; noise %s",
         100 * flying["share_of_edge_pixels"],
         100 * flying["share_of_valid_pixels"],
         "dropped" if flying["dropped"] else "kept",
+        "median-filtered" if depth["median_filter"]["applied"] else "not filtered",
     )
     ex = report["exposure"]
     log.info(

@@ -100,7 +100,7 @@ def fit_gaussians(
     seconds["init"] = time.perf_counter() - start
     log.info("init: %d Gaussians, extent %.3f m, %d training views", len(init), extent, len(views))
     start = time.perf_counter()
-    sensor = sensor_report(train, cfg.drop_flying_pixels, cfg.pose_lr > 0)
+    sensor = sensor_report(train, cfg.drop_flying_pixels, cfg.pose_lr > 0, cfg.depth_filter_window)
     seconds["sensor"] = time.perf_counter() - start
     log_report(sensor)
     noise = sensor["depth"]["noise"]["a_at_1m"] if sensor else None

@@ -29,7 +29,7 @@ def moved(x: float = 0.0, z: float = 0.0) -> NDArray[np.float64]:
 
 def test_the_report_names_the_depth_sensor_effects() -> None:
     frames = [frame(sensor(room(), 0.003, 0.001, seed=s)) for s in range(3)]
-    report = sensor_report(frames, drop_flying=True)
+    report = sensor_report(frames, drop_flying=True, median_window=5)
     depth = report["depth"]
     assert depth["noise"]["quantisation_step"] == pytest.approx(0.001, rel=0.01)
     assert depth["noise"]["units_per_metre"] == pytest.approx(1000.0, rel=0.01)  # millimetres
@@ -38,6 +38,9 @@ def test_the_report_names_the_depth_sensor_effects() -> None:
     assert depth["missing_fraction"] == pytest.approx(hole, rel=1e-6)
     assert depth["flying_pixels"]["dropped"] is True
     assert depth["flying_pixels"]["share_of_edge_pixels"] == 0.0
+    assert depth["median_filter"] == {"window": 5, "applied": True}  # noisy: filtered
+    clean = sensor_report([frame(sensor(room(), 0.0, 0.001))], True, median_window=5)
+    assert clean["depth"]["median_filter"]["applied"] is False  # noise-free: left as it is
     assert report["frames_measured"] == 3
     assert report["exposure"]["largest_consecutive_change"] == 0.0
 

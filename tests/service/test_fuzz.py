@@ -58,8 +58,12 @@ _CONVERTER = re.compile(r"{(\w+):\w+}")
 _PARAMETER = r"{\1}"
 HIDDEN_ALIASES = {"POST /v1/jobs/{job_id}/cancel": "POST /v1/jobs/{job_id}:cancel"}
 """Routes left out of the OpenAPI document -> the documented operation they answer like."""
-BROWSER_PAGES = {"GET /viewer/{job_id}", "GET /viewer/static/{name}"}
-"""The viewer's HTML page and its static files: served for browsers, left out of the API
+BROWSER_PAGES = {
+    "GET /viewer/{job_id}",
+    "GET /viewer/{job_id}/frame.json",
+    "GET /viewer/static/{name}",
+}
+"""The viewer's HTML page, its frame and its static files: served for browsers, left out of the API
 document on purpose (tests/service/test_viewer_route.py tests them)."""
 OPAQUE_INPUTS = {"POST /v1/uploads", "GET /v1/jobs"}
 """Operations whose schema cannot say which values are acceptable (archive bytes, page tokens):

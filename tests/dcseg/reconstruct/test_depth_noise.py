@@ -102,3 +102,21 @@ def test_too_little_valid_depth_gives_no_estimate() -> None:
     assert model.a is None and model.bins == ()
     assert view_noise(depth) == 0.0
     assert model.as_dict()["a_at_1m"] is None
+
+
+def cluttered() -> NDArray[np.float64]:
+    """:func:`room` with its left half full of 12-pixel bars 0.3 m in front of the wall: more
+    than half of all windows cross an edge."""
+    depth = room()
+    for x in range(0, 160, 24):
+        depth[:, x : x + 12] = np.where(depth[:, x : x + 12] > 0, 0.9, 0.0)
+    return depth
+
+
+def test_windows_across_edges_do_not_make_noise() -> None:
+    depth = cluttered()
+    _, sd = plane_residuals(sensor(depth, 0.0, 0.001), 7, 8, 2)
+    assert np.mean(sd > 1e-4) > 0.5  # most windows cross a bar's edge
+    assert noise_model([sensor(depth, 0.0, 0.001)]).a == 0.0
+    noisy = [sensor(depth, 0.003, 0.001, seed=s) for s in range(2)]
+    assert noise_model(noisy).a == pytest.approx(0.003, rel=0.3)

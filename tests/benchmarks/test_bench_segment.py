@@ -82,3 +82,16 @@ def test_capture_faults_read_from_scene_json(tmp_path: Path) -> None:
     (tmp_path / "scene.json").write_text(json.dumps({"noise_level": {"depth_sigma": 0.0}}))
     older = capture_faults(tmp_path / "scene.json")
     assert older["pose_error"] == {"deg": 0.0, "m": 0.0} and older["motion_blur_px"] == 0.0
+
+
+def test_error_generators_are_summarised_like_noise_levels() -> None:
+    rows = [
+        row("detector", 7, "heldout", 40.0, [50.0, 52.0]),
+        row("lowres", 7, "heldout", 30.0, [33.0]),
+    ]
+    summary = summarise(rows)
+    assert summary["detector"]["heldout"]["dcseg_nearest"]["mean"] == 51.0
+    assert summary["lowres"]["heldout"]["margins"]["nearest_minus_naive"]["mean"] == 3.0
+    assert "| lowres | heldout 7 |" in markdown(summary)
+    with pytest.raises(SystemExit, match="--synth error_model"):
+        synth_fields(["error_model=detector"])

@@ -215,18 +215,21 @@ def test_realistic_scene_and_cli_options(tmp_path: Path) -> None:
     from dcseg.synth import SynthConfig, generate_scene
     from dcseg.synth.generate import true_poses
 
-    small = {"frames": 3, "width": 80, "height": 60}
-    scene = generate_scene(SynthConfig(seed=1, noise="realistic", **small))
+    scene = generate_scene(SynthConfig(seed=1, noise="realistic", frames=3, width=80, height=60))
     assert scene.vocabulary.names == REALISTIC_VOCABULARY
     assert all(m.classes.min() >= 0 for m in scene.semantic)  # never abstains
-    again = generate_scene(SynthConfig(seed=1, noise="realistic", **small))
+    again = generate_scene(SynthConfig(seed=1, noise="realistic", frames=3, width=80, height=60))
     for a, b in zip(scene.semantic, again.semantic, strict=True):
         assert np.array_equal(a.classes, b.classes)
     assert [m.rles for m in scene.agnostic] == [m.rles for m in again.agnostic]
-    moved = generate_scene(SynthConfig(seed=1, noise="realistic", pose_error_deg=1.0, **small))
+    moved = generate_scene(
+        SynthConfig(seed=1, noise="realistic", pose_error_deg=1.0, frames=3, width=80, height=60)
+    )
     for f, g in zip(scene.capture.frames, moved.capture.frames, strict=True):
         assert np.array_equal(f.rgb, g.rgb) and not np.allclose(f.c2w, g.c2w)
-    truth = true_poses(SynthConfig(seed=1, noise="realistic", pose_error_deg=1.0, **small))
+    truth = true_poses(
+        SynthConfig(seed=1, noise="realistic", pose_error_deg=1.0, frames=3, width=80, height=60)
+    )
     np.testing.assert_array_equal(np.stack([f.c2w for f in scene.capture.frames]), truth)
     out = tmp_path / "scene"
     args = ["synth", str(out), "--frames", "2", "--size", "64x48", "--noise", "realistic"]

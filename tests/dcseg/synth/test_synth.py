@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from dcseg.synth.cameras import CameraModel, look_at, view_matrix
 
 pytest.importorskip("pybullet")
 
-SMALL = {"frames": 6, "width": 80, "height": 60}
+SMALL: dict[str, Any] = {"frames": 6, "width": 80, "height": 60}
 
 
 @pytest.fixture(scope="module")

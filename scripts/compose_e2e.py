@@ -12,7 +12,6 @@ follow a job. Prints each step and its time; exits 1 naming the failing step.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import shlex
 import subprocess
 import sys
@@ -24,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from dcseg.client import Client
+from dcseg.client.files import sha256_of
 from dcseg.client.retry import RetryPolicy
 
 JOB_TIMEOUT_S = 900.0
@@ -72,14 +72,6 @@ def run(cmd: list[str], timeout: float = 300.0) -> str:
     return result.stdout.strip()
 
 
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as stream:
-        for chunk in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def submit(stack: Stack, upload_id: str) -> str:
     job = stack.client.submit(upload_id, preset="fast", options=OPTIONS or None)
     return str(job["id"])
@@ -112,7 +104,7 @@ def download_and_check(stack: Stack, name: str, job_id: str) -> int:
         raise RuntimeError(f"job {job_id} lists no artifacts")
     dest = stack.work / f"download-{name}-{time.monotonic_ns()}"
     paths = stack.client.download(job_id, dest, everything=True)
-    got = {p.relative_to(dest).as_posix(): sha256(p) for p in paths}
+    got = {p.relative_to(dest).as_posix(): sha256_of(p) for p in paths}
     wrong = sorted(p for p in listing if got.get(p) != listing[p])
     if wrong or len(got) != len(listing):
         raise RuntimeError(f"job {job_id}: {len(wrong)} file(s) differ from the listing: {wrong}")

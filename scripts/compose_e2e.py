@@ -5,7 +5,7 @@ check every file's SHA-256 against the listing), then the faults: a worker kille
 reconstruction, Redis and PostgreSQL restarted during a job, the API restarted while clients
 follow a job. Prints each step and its time; exits 1 naming the failing step.
 
-    python scripts/compose_e2e.py --api http://127.0.0.1:8000 --key KEY --project dcsegtest \
+    python scripts/compose_e2e.py --api http://127.0.0.1:8000 --key KEY \
         --compose "docker-compose -p dcsegtest -f docker/compose.yaml" --work /tmp/e2e
 """
 
@@ -38,7 +38,6 @@ class Stack:
     """The compose project under test and the client that talks to its API."""
 
     client: Client
-    project: str
     compose: list[str]
     work: Path
     jobs: dict[str, str] = field(default_factory=dict)
@@ -231,13 +230,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--api", required=True)
     parser.add_argument("--key", required=True)
-    parser.add_argument("--project", required=True)
     parser.add_argument("--compose", required=True, help="the compose command, as one string")
     parser.add_argument("--work", type=Path, required=True)
     args = parser.parse_args(argv)
     retry = RetryPolicy(attempts=40, total_s=240.0, max_backoff_s=5.0)
     with Client(args.api, api_key=args.key, retry=retry) as client:
-        stack = Stack(client, args.project, shlex.split(args.compose), args.work)
+        stack = Stack(client, shlex.split(args.compose), args.work)
         name = "upload a synthetic scan"
         try:
             start = time.monotonic()

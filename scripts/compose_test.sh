@@ -115,6 +115,6 @@ done
 curl -sf "$api/readyz" >/dev/null || { say "the API at $api is not ready after 180 s"; exit 1; }
 
 at "jobs and faults"
-"$python" scripts/compose_e2e.py --api "$api" --key "${key#*:}" --project "$project" \
+"$python" scripts/compose_e2e.py --api "$api" --key "${key#*:}" \
     --compose "${compose[*]}" --work "$work"
 step="tear down"

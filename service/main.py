@@ -21,13 +21,13 @@ from pathlib import Path
 from typing import Protocol
 
 from fastapi import FastAPI
-from fastapi.concurrency import run_in_threadpool
 
 from dcseg import __version__
 from jobstore.blobstore import Storage, make_storage
 from jobstore.settings import Settings, get_settings
 from jobstore.store import Store
 from service import openapi, problems
+from service.background import in_thread
 from service.deps import LOCAL_TENANT, AppState, make_limiter
 from service.exports import Exporter
 from service.queue import JobQueue, make_queue
@@ -134,7 +134,7 @@ async def recover_lost_jobs(
         if local is not None:
             local.ensure_running()
         try:
-            await run_in_threadpool(recover_once, store, queue, settings, resend)
+            await in_thread(recover_once, store, queue, settings, resend)
             resend = False
         except Exception:
             logger.exception("recovery sweep failed; retrying")
@@ -184,7 +184,7 @@ async def housekeep(store: Store, settings: Settings, storage: Storage) -> None:
     while True:
         await asyncio.sleep(settings.housekeeping_interval_s)
         try:
-            await run_in_threadpool(housekeep_once, store, settings, storage)
+            await in_thread(housekeep_once, store, settings, storage)
         except Exception:
             logger.exception("housekeeping failed; retrying")
 

@@ -22,10 +22,10 @@ from datetime import timedelta
 from urllib.parse import urlsplit
 
 import httpx
-from fastapi.concurrency import run_in_threadpool
 
 from jobstore.settings import Settings
 from jobstore.store import AttemptOutcome, DeliveryClaim, Store, new_id
+from service.background import in_thread
 from service.jobs import job_public
 
 logger = logging.getLogger(__name__)
@@ -114,12 +114,10 @@ class Dispatcher:
 
     async def run_once(self) -> int:
         """Claim the due deliveries and send them; returns how many were attempted."""
-        if not await run_in_threadpool(self.store.webhooks_due):
+        if not await in_thread(self.store.webhooks_due):
             return 0
         lease = timedelta(seconds=self.settings.webhook_lease_s)
-        claims = await run_in_threadpool(
-            self.store.claim_webhook_deliveries, self.owner, lease, BATCH
-        )
+        claims = await in_thread(self.store.claim_webhook_deliveries, self.owner, lease, BATCH)
         for claim in claims:
             await self.deliver(claim)
         return len(claims)
@@ -127,7 +125,7 @@ class Dispatcher:
     async def deliver(self, claim: DeliveryClaim) -> None:
         """POST the job to the claim's URL once and record the outcome."""
         outcome = await self._attempt(claim)
-        state = await run_in_threadpool(
+        state = await in_thread(
             self.store.record_webhook_attempt,
             claim,
             self.owner,
@@ -145,12 +143,10 @@ class Dispatcher:
         )
 
     async def _attempt(self, claim: DeliveryClaim) -> AttemptOutcome:
-        job = await run_in_threadpool(self.store.get_job, claim.job_id)
+        job = await in_thread(self.store.get_job, claim.job_id)
         if job is None:
             return AttemptOutcome(None, "the job was deleted")
-        refusal = await run_in_threadpool(
-            url_refusal, claim.url, self.settings.webhook_allow_private
-        )
+        refusal = await in_thread(url_refusal, claim.url, self.settings.webhook_allow_private)
         if refusal is not None:
             return AttemptOutcome(None, f"not sent: {refusal}")
         body = json.dumps(

@@ -64,6 +64,11 @@ def make_engine(url: str, busy_timeout_s: float = 10.0) -> Engine:
     return create_engine(url, pool_pre_ping=True)
 
 
+def _close_on_checkin(dbapi_conn: Any, record: ConnectionPoolEntry) -> None:
+    if dbapi_conn is not None:
+        record.invalidate()  # closes it; a later checkout (store reused) connects again
+
+
 class StoreBase:
     """The engine and its sessions; each part of :class:`jobstore.store.Store` builds on it."""
 
@@ -94,6 +99,10 @@ class StoreBase:
             yield session
 
     def close(self) -> None:
+        """Close the pooled connections. One still checked out (a thread past the API's
+        shutdown deadline) is closed when it is returned, not left open in the old pool."""
+        if not event.contains(self.engine, "checkin", _close_on_checkin):
+            event.listen(self.engine, "checkin", _close_on_checkin)
         self.engine.dispose()
 
     def ping(self) -> None:

@@ -82,3 +82,18 @@ def test_sqlite_busy_timeout_comes_from_settings(tmp_path):
                 assert conn.exec_driver_sql("PRAGMA busy_timeout").scalar() == expected_ms
         finally:
             store.close()
+
+
+def test_a_connection_in_use_at_close_is_closed_when_returned(sqlite_store):
+    """A sweep thread past the shutdown deadline still holds a connection when the store
+    closes: returning it must close it (else it stays open in the old pool until garbage
+    collection, where psycopg warns)."""
+    conn = sqlite_store.engine.connect()
+    raw = conn.connection.dbapi_connection
+    assert raw is not None
+    sqlite_store.close()
+    raw.execute("SELECT 1")  # still usable by its holder
+    conn.close()
+    with pytest.raises(sqlite3.ProgrammingError, match="closed"):
+        raw.execute("SELECT 1")
+    assert sqlite_store.get_job("missing") is None  # a store used again reconnects

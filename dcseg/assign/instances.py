@@ -205,7 +205,7 @@ def object_instances(
     group = _attach_loose(xyz, semantic, group, radius, cfg.neighbours)
     scores = cluster_scores[np.maximum(labels, 0)] if k else np.zeros(len(labels))
     scores = np.where(labels >= 0, scores, 0.0)
-    return _number(group, semantic, scores, labels, k, cfg.min_instance_gaussians)
+    return number_groups(group, semantic, scores, labels, k, cfg.min_instance_gaussians)
 
 
 def merge_near_objects(
@@ -308,7 +308,7 @@ def drop_fragments(
     return out
 
 
-def _number(
+def number_groups(
     group: NDArray[np.int64],
     semantic: NDArray[np.int64],
     scores: NDArray[np.float64],

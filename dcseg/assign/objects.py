@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.assign.adoption import adopt_fragments
+from dcseg.assign.agnostic import agnostic_instances
 from dcseg.assign.completion import complete_labels
 from dcseg.assign.config import AssignConfig
 from dcseg.assign.consistency import follow_evidence
@@ -51,12 +52,16 @@ def build_objects(
     (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.contact_factor``); ``stuff``
     the vocabulary's stuff classes (:func:`stuff_ids`). Without evidence, a contact radius,
     or both ``cfg.objects`` and ``cfg.complete`` off, every cluster is one instance and
-    ``semantic_ids`` stay as they are.
+    ``semantic_ids`` stay as they are. Without classes (a class-agnostic run) and with
+    ``cfg.objects``, touching clusters whose features agree merge
+    (:mod:`dcseg.assign.agnostic`).
 
     Returns:
         The instances and the ``[N]`` final class per Gaussian (-1 = none).
     """
     labels = clustering.labels
+    if cfg.objects and assignment.votes.shape[1] == 0:  # no classes: a class-agnostic run
+        return agnostic_instances(means, labels, clustering.centers, radius, cfg), semantic_ids
     if (not cfg.objects and not cfg.complete) or radius <= 0 or evidence is None:
         return per_cluster_instances(labels, assignment), semantic_ids
     fragments = adopt_fragments(means, labels, semantic_ids, evidence, radius, cfg)

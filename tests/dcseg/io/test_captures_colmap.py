@@ -15,6 +15,7 @@ from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.inputs import RunInputs
 from dcseg.io.captures import detect_layout, read_capture
+from dcseg.io.captures.manifest import write_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
 from dcseg.types import Capture, Intrinsics
@@ -384,3 +385,12 @@ def test_synth_scene_as_colmap(tmp_path: Path) -> None:
     """A ``dcseg synth`` capture written as a binary COLMAP model reads back the same."""
     scene = capture_scene(synth_capture(tmp_path / "s"))
     check_round_trip(scene, write_colmap(scene, tmp_path / "colmap"))
+
+
+def test_rgb_only_capture_is_not_written_as_a_manifest(
+    rgbd_scene: RgbdScene, tmp_path: Path
+) -> None:
+    capture = read_capture(remove_depth(write_colmap(rgbd_scene, tmp_path / "c")))
+    with pytest.raises(ValueError, match="RGB-only capture cannot be written"):
+        write_capture(capture, tmp_path / "manifest")
+    assert not (tmp_path / "manifest").exists()

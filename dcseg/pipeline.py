@@ -32,6 +32,7 @@ from dcseg.evaluate.views import vote_views
 from dcseg.gaussians import Gaussians
 from dcseg.io.run_state import BlendMemory, ViewState, write_view
 from dcseg.progress import Progress, quiet, steps
+from dcseg.reconstruct.rgbonly import with_rendered_depth
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
 from dcseg.segment import EvidenceSum, label_map
@@ -103,6 +104,7 @@ def train_scene(
         cache_dir: where the cache is written (see :func:`build_views`); None = in memory.
     """
     frozen = gaussians.detach()
+    capture = with_rendered_depth(capture, frozen)  # an RGB-only capture's depth: rendered
     views = build_views(frozen, capture, cfg.cache, on_progress, cache_dir)
     depth = {f.name: f.depth for f in capture.frames}  # held by the capture anyway
     inputs = [

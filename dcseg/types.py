@@ -13,7 +13,7 @@ Arrays inside these types are made read-only so that the dataclasses are frozen 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -163,9 +163,42 @@ class Frame:
         return out
 
 
+DepthSource = Literal["sensor", "none", "rendered"]
+"""Where a capture's depth comes from: ``"sensor"`` = the capture's own depth maps;
+``"none"`` = an RGB-only capture (every frame's depth is all 0, i.e. missing everywhere);
+``"rendered"`` = depth rendered from the reconstruction of an RGB-only capture, for the stages
+after it (:func:`dcseg.reconstruct.rgbonly.with_rendered_depth`)."""
+
+
+@dataclass(frozen=True)
+class SparsePoints:
+    """A structure-from-motion point cloud (COLMAP's ``points3D``), in the poses' world frame.
+
+    Attributes:
+        xyz: ``[P, 3]`` float64 positions (the model's units: arbitrary for SfM alone).
+        rgb: ``[P, 3]`` uint8 colours.
+        error: ``[P]`` float64 mean reprojection error (pixels).
+        track: ``[P]`` int64 number of images observing each point.
+        source: the file they were read from.
+    """
+
+    xyz: NDArray[np.float64]
+    rgb: NDArray[np.uint8]
+    error: NDArray[np.float64]
+    track: NDArray[np.int64]
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        for array in (self.xyz, self.rgb, self.error, self.track):
+            _frozen(array)
+
+    def __len__(self) -> int:
+        return int(self.xyz.shape[0])
+
+
 @dataclass(frozen=True)
 class Capture:
-    """A validated sequence of posed RGB-D frames.
+    """A validated sequence of posed RGB-D (or RGB-only) frames.
 
     Construction validates every frame and raises :class:`InputError` listing all problems.
 
@@ -174,16 +207,33 @@ class Capture:
         layout: which reader produced it (``"dcseg"``, ``"scannet"``, ``"replica"``,
             ``"nerfstudio"``, ``"7scenes"``).
         root: the folder the capture was read from.
+        depth_source: where the frames' depth comes from (:data:`DepthSource`). With
+            ``"none"`` every frame's depth is all 0 and the depth-dependent steps are off.
+        sparse: the layout's sparse points when it has them (COLMAP ``points3D``); an RGB-only
+            capture initialises its Gaussians from them.
     """
 
     frames: tuple[Frame, ...]
     layout: str
     root: str = ""
+    depth_source: DepthSource = "sensor"
+    sparse: SparsePoints | None = None
 
     def __post_init__(self) -> None:
         problems = capture_problems(self.frames, self.root or "capture")
+        if self.depth_source == "none":
+            problems += [
+                Problem(f.file("depth"), "an RGB-only capture's depth must be all 0 (missing)")
+                for f in self.frames
+                if np.any(f.depth)
+            ]
         if problems:
             raise InputError(problems)
+
+    @property
+    def has_depth(self) -> bool:
+        """Whether the frames carry depth (measured or rendered), not all-0 placeholders."""
+        return self.depth_source != "none"
 
     def __len__(self) -> int:
         return len(self.frames)

@@ -88,6 +88,12 @@ def capture_views(path: Path) -> list[DepthView]:
     from dcseg.io.captures import read_capture
 
     capture = read_capture(path)
+    if not capture.has_depth:
+        reason = (
+            "an RGB-only capture has no depth to mesh: export from the run's state (its depth "
+            "is rendered from the reconstruction), without --capture"
+        )
+        raise InputError.single(str(path), reason)
     views = []
     for frame in capture.frames:
         k = frame.intrinsics

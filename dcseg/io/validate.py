@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from dcseg.config import CaptureOptions
+from dcseg.depthless import depth_summary
 from dcseg.errors import InputError, Problem
 from dcseg.inputs import RunInputs
 from dcseg.io.captures import CaptureListing, list_capture
@@ -118,7 +119,8 @@ def _decoded_files(
     if listed is not None:
         for spec in select(listed.listing.specs, options):
             yield spec.rgb
-            yield spec.depth
+            if spec.depth is not None:
+                yield spec.depth
     for folder in (paths.agnostic_masks, paths.semantic_masks):
         if folder is not None and folder.is_dir():
             for path in sorted(folder.rglob("*")):
@@ -157,8 +159,9 @@ def _over_pixel_budget(
 class _CaptureTally:
     """A capture summary built frame by frame, so frames need not be held together."""
 
-    def __init__(self, layout: str) -> None:
+    def __init__(self, layout: str, depthless: dict[str, Any] | None = None) -> None:
         self.layout = layout
+        self.depthless = depthless
         self.names: set[str] = set()
         self.sizes: set[str] = set()
         self.frames = 0
@@ -193,7 +196,16 @@ class _CaptureTally:
             "depth_min_m": self.depth_min if self.valid else None,
             "depth_max_m": self.depth_max if self.valid else None,
             "depth_valid_fraction": float(self.valid / self.pixels) if self.pixels else 0.0,
+            **(self.depthless or {}),
         }
+
+
+def _depthless(listed: CaptureListing) -> dict[str, Any] | None:
+    """:func:`~dcseg.depthless.depth_summary` of an RGB-only capture, None for one with depth."""
+    if listed.listing.depth_source != "none":
+        return None
+    sparse = listed.listing.sparse
+    return depth_summary(None if sparse is None else len(sparse))
 
 
 def _check_capture(
@@ -207,7 +219,7 @@ def _check_capture(
     if listed is None:
         return None
     found = list(listed.listing.problems)
-    tally = _CaptureTally(listed.layout)
+    tally = _CaptureTally(listed.layout, _depthless(listed))
     sizes: dict[str, tuple[int, int] | None] = dict.fromkeys(listed.listing.unlisted)
     for spec, frame, frame_problems in iter_frames(listed.listing, listed.folder, options):
         found.extend(frame_problems)
@@ -371,7 +383,12 @@ def summarise_capture(capture: Capture) -> dict[str, Any]:
         "depth_min_m": float(values.min()) if values.size else None,
         "depth_max_m": float(values.max()) if values.size else None,
         "depth_valid_fraction": float(values.size / pixels) if pixels else 0.0,
+        **(depth_summary(_points(capture)) if capture.depth_source == "none" else {}),
     }
+
+
+def _points(capture: Capture) -> int | None:
+    return None if capture.sparse is None else len(capture.sparse)
 
 
 def summarise_agnostic(masks: Mapping[str, AgnosticMasks]) -> dict[str, Any]:

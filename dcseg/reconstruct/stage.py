@@ -20,6 +20,7 @@ from dcseg.reconstruct.evaluate import Metrics, evaluate
 from dcseg.reconstruct.fit import FitResult, ProgressCallback, optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
 from dcseg.reconstruct.poses import change_stats, corrected_c2w
+from dcseg.reconstruct.rgbonly import rgb_only_init, rgb_only_report
 from dcseg.reconstruct.sensor import log_report, sensor_report
 from dcseg.reconstruct.views import make_view, split_frames
 from dcseg.types import Capture, Frame
@@ -90,8 +91,11 @@ def fit_gaussians(
     train, test = split_frames(capture.frames, cfg.holdout)
     seconds: dict[str, float] = {}
     start = time.perf_counter()
-    extent = scene_extent(train)
-    init = init_from_frames(train, cfg, extent=extent, device=device)
+    if capture.has_depth:
+        extent = scene_extent(train)
+        init = init_from_frames(train, cfg, extent=extent, device=device)
+    else:  # RGB-only: sparse points, photometric loss only (rgbonly.py)
+        cfg, extent, init = rgb_only_init(capture, train, cfg, device)
     denoise = DepthFilter.of(cfg)
     views = [make_view(f, cfg.train_downscale, device, denoise) for f in train]
     fine = None
@@ -100,10 +104,15 @@ def fit_gaussians(
     seconds["init"] = time.perf_counter() - start
     log.info("init: %d Gaussians, extent %.3f m, %d training views", len(init), extent, len(views))
     start = time.perf_counter()
-    sensor = sensor_report(train, cfg.drop_flying_pixels, cfg.pose_lr > 0, cfg.depth_filter_window)
+    if capture.has_depth:
+        sensor = sensor_report(
+            train, cfg.drop_flying_pixels, cfg.pose_lr > 0, cfg.depth_filter_window
+        )
+        log_report(sensor)
+    else:
+        sensor = rgb_only_report(capture, train)
     seconds["sensor"] = time.perf_counter() - start
-    log_report(sensor)
-    noise = sensor["depth"]["noise"]["a_at_1m"] if sensor else None
+    noise = sensor["depth"]["noise"]["a_at_1m"] if sensor and capture.has_depth else None
 
     start = time.perf_counter()
     fitted = optimise(init, views, cfg, extent, fine_views=fine, on_progress=on_progress)

@@ -11,7 +11,8 @@ Supported layouts (see each module's docstring for the details):
 * ``polycam``: Polycam's raw data export, ``keyframes/`` (:mod:`.polycam`);
 * ``7scenes``: Microsoft 7-Scenes, ``frame-*.color.*`` (:mod:`.sevenscenes`);
 * ``tum``: TUM RGB-D, ``rgb.txt`` + ``depth.txt`` + ``groundtruth.txt`` (:mod:`.tum`);
-* ``colmap``: a COLMAP sparse model, ``sparse/0/cameras`` + ``images`` with depth (:mod:`.colmap`);
+* ``colmap``: a COLMAP sparse model, ``sparse/0/cameras`` + ``images``, with depth or RGB-only
+  (:mod:`.colmap`);
 * ``redwood``: Redwood / Open3D, ``image|rgb|color/`` + ``depth/`` + a ``.log`` (:mod:`.redwood`);
 * ``arkitscenes``: Apple ARKitScenes, ``lowres_wide/`` + ``lowres_wide.traj`` (:mod:`.arkitscenes`);
 * ``scannetpp``: ScanNet++ iPhone, ``rgb/`` + ``pose_intrinsic_imu.json`` (:mod:`.scannetpp`);

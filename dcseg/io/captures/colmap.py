@@ -30,10 +30,13 @@ renders pinhole cameras): undistort first with ``colmap image_undistorter``, whi
 ``PINHOLE`` cameras and undistorted images (as 3DGS's ``convert.py`` does). Fisheye models are
 refused the same way.
 
-Depth is required for now (the pipeline initialises Gaussians and mask scales from it): a model
-without ``depth/`` is reported as such. Depth must be metric and in the model's units, so a
-model from images alone must first be scaled to metres (e.g. ``colmap model_aligner``); with
-``points3D``, :mod:`.colmap_scale` checks it. Depth
+Without a ``depth/`` folder the capture is RGB-only (``Capture.depth_source == "none"``, every
+frame's depth all 0): ``points3D`` is then required and read (:mod:`.colmap_points`), the
+Gaussians are initialised from it and trained with photometric losses only
+(:mod:`dcseg.reconstruct.rgbonly`, which lists the steps that are off). The model's scale is then
+arbitrary, so options stated in metres are in its units. With ``depth/``, depth must be metric
+and in the model's units, so a model from images alone must first be scaled to metres (e.g.
+``colmap model_aligner``); with ``points3D``, :mod:`.colmap_scale` checks it. Depth
 at another resolution than its image is resampled onto it (nearest; same field of view).
 Frames are named by the image name without its extension, sorted naturally.
 """
@@ -52,6 +55,7 @@ from scipy.spatial.transform import Rotation
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
 from dcseg.io.captures.binary import BinaryReader, open_binary
+from dcseg.io.captures.colmap_points import read_points3d
 from dcseg.io.captures.colmap_scale import Observed, scale_problem
 from dcseg.io.captures.common import (
     Camera,
@@ -86,10 +90,9 @@ _TWO_FOCAL = {"PINHOLE", "OPENCV", "FULL_OPENCV"}
 _QUATERNION_TOLERANCE = 1e-3
 _IMAGE_HEADER = 64 + 1 + 8  # fixed part, the shortest name (its NUL), the 2D point count
 _UNDISTORT = "undistort the images first with `colmap image_undistorter` (it writes PINHOLE)"
-_NO_DEPTH = (
-    "missing: this COLMAP capture has no depth maps (depth/<image stem>.png, uint16 "
-    "millimetres, or .npy float32 metres). dcseg needs depth for now: reconstruction from "
-    "the sparse points alone (RGB-only) is not supported yet"
+_NO_POINTS = (
+    "missing: an RGB-only COLMAP capture (no depth/ folder) is initialised from the sparse "
+    "points, so it needs points3D.bin or points3D.txt beside cameras and images"
 )
 
 
@@ -335,18 +338,30 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     warn_if_options_intrinsics(options, "COLMAP")
     cameras, images = _read_model(root, folder)
     listing = Listing(resample_depth=True)
-    if not (root / "depth").is_dir():
-        listing.problems.append(Problem("depth/", _NO_DEPTH))
-        return listing
+    rgb_only = not (root / "depth").is_dir()
+    if rgb_only:
+        _add_sparse(root, folder, listing)
     intrinsics = {camera_id: _pinhole(camera) for camera_id, camera in cameras.items()}
     for camera_id, found in sorted(intrinsics.items()):
         if isinstance(found, str):
             listing.problems.append(Problem(cameras[camera_id].source, found))
     for image in sorted(images, key=lambda im: numeric_sort_key(im.name)):
-        _add_image(root, image, intrinsics, listing)
-    if listing.specs and not listing.problems:
+        _add_image(root, image, intrinsics, listing, rgb_only)
+    if listing.specs and not listing.problems and not rgb_only:
         _check_scale(root, folder, images, listing)
     return listing
+
+
+def _add_sparse(root: Path, folder: Path, listing: Listing) -> None:
+    """Mark the listing RGB-only and attach the model's sparse points (or say they are missing)."""
+    listing.depth_source = "none"
+    points = _model_file(folder, "points3D")
+    if points is None:
+        listing.problems.append(Problem(rel(folder / "points3D.bin", root), _NO_POINTS))
+        return
+    listing.sparse = read_points3d(points, rel(points, root))
+    if not len(listing.sparse):
+        listing.problems.append(Problem(listing.sparse.source, "holds no points: " + _NO_POINTS))
 
 
 def _check_scale(root: Path, folder: Path, images: list[_Image], listing: Listing) -> None:
@@ -361,7 +376,7 @@ def _check_scale(root: Path, folder: Path, images: list[_Image], listing: Listin
 
 
 def _add_image(
-    root: Path, image: _Image, intrinsics: dict[int, Camera | str], listing: Listing
+    root: Path, image: _Image, intrinsics: dict[int, Camera | str], listing: Listing, rgb_only: bool
 ) -> None:
     name = posixpath.splitext(image.name)[0]
     camera = intrinsics.get(image.camera_id)
@@ -378,5 +393,6 @@ def _add_image(
     if reasons or not isinstance(camera, Camera) or isinstance(pose, str):
         listing.unlisted.append(name)
         return
-    spec = FrameSpec(name, rgb, _depth_file(root, name), pose, camera, image.source)
+    depth = None if rgb_only else _depth_file(root, name)
+    spec = FrameSpec(name, rgb, depth, pose, camera, image.source)
     add_if_present(listing, spec, root)

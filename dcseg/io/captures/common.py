@@ -16,7 +16,7 @@ import re
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,10 +24,11 @@ from numpy.typing import NDArray
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
 from dcseg.io import images
+from dcseg.io.captures.depth_files import read_npy, register_depth
 from dcseg.io.exr import read_exr_depth
 from dcseg.io.images import display_path, read_image, resize_area, resize_nearest
 from dcseg.io.lzfse_buffers import read_lzfse_array
-from dcseg.types import Capture, Frame, Intrinsics, capture_problems
+from dcseg.types import Capture, DepthSource, Frame, Intrinsics, SparsePoints, capture_problems
 
 logger = logging.getLogger(__name__)
 
@@ -67,7 +68,8 @@ class FrameSpec:
 
     Attributes:
         name: the frame name (masks are matched to it).
-        rgb, depth: absolute paths of the colour and depth files.
+        rgb, depth: absolute paths of the colour and depth files; ``depth`` None = the frame
+            has no depth (an RGB-only capture: its depth is all 0).
         c2w: ``[4, 4]`` camera-to-world pose in OpenCV axes (not yet validated).
         camera: the colour intrinsics.
         pose_source: where the pose came from, for messages.
@@ -87,7 +89,7 @@ class FrameSpec:
 
     name: str
     rgb: Path
-    depth: Path
+    depth: Path | None
     c2w: NDArray[np.float64]
     camera: Camera
     pose_source: str
@@ -109,12 +111,16 @@ class Listing:
         resample_depth: whether depth may come at another resolution than colour.
         unlisted: names of frames the layout names but could not list (a part is missing or
             its pose is malformed; the problem is in ``problems``).
+        depth_source: ``"sensor"``, or ``"none"`` for an RGB-only capture (specs' depth None).
+        sparse: the layout's sparse points, when it has them (COLMAP ``points3D``).
     """
 
     specs: list[FrameSpec] = field(default_factory=list)
     problems: list[Problem] = field(default_factory=list)
     resample_depth: bool = False
     unlisted: list[str] = field(default_factory=list)
+    depth_source: DepthSource = "sensor"
+    sparse: SparsePoints | None = None
 
     def unlist(self, name: str, problems: Iterable[Problem]) -> None:
         """Frame ``name`` cannot be listed, for ``problems``: both reported together."""
@@ -136,7 +142,7 @@ def add_if_present(listing: Listing, spec: FrameSpec, root: Path) -> None:
     """Append ``spec`` to the listing, or a ``missing`` problem if its colour or depth is absent."""
     if not spec.rgb.is_file():
         listing.problems.append(missing(spec.rgb, root, "colour", spec.rgb))
-    elif not spec.depth.is_file():
+    elif spec.depth is not None and not spec.depth.is_file():
         listing.problems.append(missing(spec.depth, root, "depth", spec.rgb))
     else:
         listing.specs.append(spec)
@@ -237,7 +243,8 @@ def load_capture(
     if problems:
         raise InputError(problems)
     logger.info("read %d frames of a %s capture from %s", len(frames), layout, shown)
-    return Capture(frames=tuple(frames), layout=layout, root=shown)
+    source, sparse = listing.depth_source, listing.sparse
+    return Capture(tuple(frames), layout, shown, depth_source=source, sparse=sparse)
 
 
 def iter_frames(
@@ -264,7 +271,9 @@ def _load_frame(
 ) -> tuple[Frame | None, list[Problem]]:
     problems: list[Problem] = []
     rgb = _collect(problems, read_spec_colour, spec, root)
-    depth = _collect(problems, read_depth, spec, root)
+    depth = _collect(problems, read_depth, spec, root) if spec.depth is not None else None
+    if rgb is not None and spec.depth is None:  # RGB-only: missing everywhere
+        depth = np.zeros(rgb.shape[:2], np.float32)
     if rgb is None or depth is None:
         return None, problems
     size = (int(rgb.shape[1]), int(rgb.shape[0]))
@@ -324,13 +333,14 @@ def colour_name(spec: FrameSpec, root: Path) -> str:
 
 def read_depth(spec: FrameSpec, root: Path) -> NDArray[np.float32]:
     """A depth file as ``[H, W]`` float32 metres, 0 = invalid (before any resampling)."""
+    assert spec.depth is not None, "an RGB-only frame has no depth file"
     shown = rel(spec.depth, root)
     if spec.depth.suffix == RAW_DEPTH_SUFFIX:
         metres = read_lzfse_array(spec.depth, shown, _raw_size(spec), np.float32)
         return np.where(np.isfinite(metres) & (metres > 0), metres, np.float32(0.0))
     if spec.depth.suffix.lower() == ".exr":
         return read_exr_depth(spec.depth, shown)
-    raw = _read_npy(spec.depth, shown) if spec.depth.suffix == ".npy" else None
+    raw = read_npy(spec.depth, shown) if spec.depth.suffix == ".npy" else None
     if raw is None:
         raw = read_image(spec.depth, root=root)
     if raw.ndim != 2:
@@ -345,6 +355,11 @@ def read_depth(spec: FrameSpec, root: Path) -> NDArray[np.float32]:
     for value in spec.depth_invalid:
         metres[raw == value] = 0.0
     return metres
+
+
+def depth_name(spec: FrameSpec, root: Path) -> str:
+    """How messages name a frame's depth: its file, or that it has none (RGB-only)."""
+    return "no depth (RGB-only)" if spec.depth is None else rel(spec.depth, root)
 
 
 def _raw_size(spec: FrameSpec) -> tuple[int, int]:
@@ -393,25 +408,9 @@ def mask_low_confidence(
         raise InputError.single(
             rel(spec.confidence, root),
             f"confidence size {levels.shape[1]}x{levels.shape[0]} does not match depth size "
-            f"{depth.shape[1]}x{depth.shape[0]} ({rel(spec.depth, root)})",
+            f"{depth.shape[1]}x{depth.shape[0]} ({depth_name(spec, root)})",
         )
     return np.where(levels >= min_confidence, depth, np.float32(0.0))
-
-
-def _read_npy(path: Path, shown: str) -> NDArray[Any]:
-    try:
-        mapped = np.load(path, mmap_mode="r", allow_pickle=False)
-    except FileNotFoundError:
-        raise InputError.single(shown, "missing") from None
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputError.single(shown, f"cannot read .npy depth ({exc})") from None
-    if mapped.size > images.MAX_PIXELS:
-        raise InputError.single(
-            shown,
-            f"depth array has {mapped.size:,} values, above the limit of {images.MAX_PIXELS:,}",
-        )
-    images.charge_pixels(int(mapped.size), shown)
-    return np.array(mapped)
 
 
 def _depth_on_colour_grid(
@@ -426,28 +425,14 @@ def _depth_on_colour_grid(
         return depth
     if not resample_depth:
         raise InputError.single(
-            rel(spec.depth, root),
+            depth_name(spec, root),
             f"depth size {depth_size[0]}x{depth_size[1]} does not match "
             f"colour size {size[0]}x{size[1]} ({rel(spec.rgb, root)})",
         )
     if spec.depth_k is None:
         return resize_nearest(depth, size)
-    return _register_depth(depth, spec.depth_k, spec.camera, size)
-
-
-def _register_depth(
-    depth: NDArray[np.float32], depth_k: NDArray[np.float64], camera: Camera, size: tuple[int, int]
-) -> NDArray[np.float32]:
-    """Nearest-neighbour lookup of depth for each colour pixel through both camera matrices."""
-    u = (np.arange(size[0]) - camera.cx) / camera.fx
-    v = (np.arange(size[1]) - camera.cy) / camera.fy
-    cols = np.rint(depth_k[0, 0] * u + depth_k[0, 2]).astype(np.int64)
-    rows = np.rint(depth_k[1, 1] * v + depth_k[1, 2]).astype(np.int64)
-    height, width = depth.shape
-    ok_c, ok_r = (cols >= 0) & (cols < width), (rows >= 0) & (rows < height)
-    out = depth[np.clip(rows, 0, height - 1)[:, None], np.clip(cols, 0, width - 1)[None, :]]
-    out = np.where(ok_r[:, None] & ok_c[None, :], out, np.float32(0.0))
-    return np.ascontiguousarray(out, dtype=np.float32)
+    camera = spec.camera
+    return register_depth(depth, spec.depth_k, (camera.fx, camera.fy, camera.cx, camera.cy), size)
 
 
 def _native_intrinsics(camera: Camera, size: tuple[int, int], rgb: str) -> Intrinsics:
@@ -478,7 +463,7 @@ def _finish_frame(
         depth = np.where(depth > options.depth_trunc, np.float32(0.0), depth)
     files = {
         "rgb": colour_name(spec, root),
-        "depth": rel(spec.depth, root),
+        "depth": depth_name(spec, root),
         "pose": spec.pose_source,
         "intrinsics": spec.camera.source,
     }

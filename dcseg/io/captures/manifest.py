@@ -203,9 +203,15 @@ def write_capture(capture: Capture, folder: Path) -> Path:
     Returns:
         The path of the written ``capture.json``.
 
+    Raises:
+        ValueError: the capture is RGB-only (the manifest has no place for its sparse points,
+            and its all-0 depth would read back as a capture with depth and none valid).
+
     Example:
         >>> manifest = write_capture(capture, Path("out/scene"))  # doctest: +SKIP
     """
+    if not capture.has_depth:
+        raise ValueError("an RGB-only capture cannot be written as a dcseg manifest (no depth)")
     folder.mkdir(parents=True, exist_ok=True)
     k = capture.frames[0].intrinsics
     doc = {

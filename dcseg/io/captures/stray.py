@@ -121,6 +121,7 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     _report_beyond(rows, count, listing)
     for index, row in enumerate(rows[:count]):
         spec = _spec(root, row, root / VIDEO, camera, index)
+        assert spec.depth is not None  # Stray Scanner always has depth
         if spec.depth.is_file():
             listing.specs.append(spec)
         else:

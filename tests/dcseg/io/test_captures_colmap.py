@@ -10,13 +10,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dcseg.cli.validate import format_report
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.inputs import RunInputs
 from dcseg.io.captures import detect_layout, read_capture
+from dcseg.io.captures.manifest import write_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
-from dcseg.types import Intrinsics
+from dcseg.types import Capture, Intrinsics
 from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import (
     RgbdScene,
@@ -275,19 +277,100 @@ def test_depth_at_another_resolution_is_resampled(tmp_path: Path) -> None:
     assert frame.depth[3, 5] == pytest.approx(scene.depth[1][2, 4])
 
 
-def test_rgb_only_needs_depth_for_now(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
-    root = write_colmap(rgbd_scene, tmp_path)
+def remove_depth(root: Path) -> Path:
     for path in (root / "depth").iterdir():
         path.unlink()
     (root / "depth").rmdir()
+    return root
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_rgb_only_model_reads_with_its_sparse_points(
+    rgbd_scene: RgbdScene, tmp_path: Path, binary: bool
+) -> None:
+    """Without depth/ the capture is RGB-only: depth all 0, the points3D row read (xyz, rgb,
+    error, track length), the images' colour and poses as with depth."""
+    capture = read_capture(remove_depth(write_colmap(rgbd_scene, tmp_path, binary=binary)))
+    assert capture.layout == "colmap" and capture.depth_source == "none"
+    assert not capture.has_depth
+    assert all(not f.depth.any() and f.depth.shape == f.rgb.shape[:2] for f in capture.frames)
+    assert capture.frames[0].files["depth"] == "no depth (RGB-only)"
+    expected = scene_capture(rgbd_scene).frames
+    for frame, before in zip(capture.frames, expected, strict=True):
+        np.testing.assert_array_equal(frame.rgb, before.rgb)
+        np.testing.assert_allclose(frame.c2w, before.c2w, atol=1e-9)
+    sparse = capture.sparse
+    assert sparse is not None and len(sparse) == 1
+    np.testing.assert_array_equal(sparse.xyz, [[0.5, 0.25, 2.0]])
+    np.testing.assert_array_equal(sparse.rgb, [[200, 100, 50]])
+    assert sparse.error.tolist() == [0.7] and sparse.track.tolist() == [1]
+    assert sparse.source == f"sparse/0/points3D.{'bin' if binary else 'txt'}"
+
+
+def test_validate_says_depth_is_absent_and_what_is_off(
+    rgbd_scene: RgbdScene, tmp_path: Path
+) -> None:
+    root = remove_depth(write_colmap(rgbd_scene, tmp_path))
+    report = validate_inputs(RunInputs(capture=root))
+    assert report.ok
+    out = format_report(report.summary, [])
+    assert "layout: colmap" in out and "depth: absent (RGB-only capture)" in out
+    assert "sparse_points: 1" in out and "depth loss (reconstruct.depth_weight)" in out
+    assert "scale is arbitrary" in report.summary["capture"]["scale"]
+    assert report.summary["capture"]["depth_valid_fraction"] == 0.0
+
+
+def test_rgb_only_without_points_is_refused(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = remove_depth(write_colmap(rgbd_scene, tmp_path))
+    (root / "sparse" / "0" / "points3D.bin").unlink()
     with pytest.raises(InputError) as info:
         read_capture(root)
     assert str(info.value).startswith(
-        "depth/: missing: this COLMAP capture has no depth maps (depth/<image stem>.png, "
-        "uint16 millimetres, or .npy float32 metres). dcseg needs depth for now"
+        "sparse/0/points3D.bin: missing: an RGB-only COLMAP capture (no depth/ folder) is "
+        "initialised from the sparse points"
     )
     report = validate_inputs(RunInputs(capture=root))
-    assert [p.path for p in report.problems] == ["depth/"]
+    assert [p.path for p in report.problems] == ["sparse/0/points3D.bin"]
+
+
+@pytest.mark.parametrize(
+    ("line", "reason"),
+    [
+        ("12 0.5 0.25", "expected POINT3D_ID X Y Z R G B ERROR then IMAGE_ID POINT2D_IDX pairs"),
+        ("12 0.5 0.25 2.0 200 100 50 0.7 8", "then IMAGE_ID POINT2D_IDX pairs, got 9 values"),
+        ("12 0.5 0.25 nan 200 100 50 0.7 8 1", "X Y Z must be finite"),
+        ("12 0.5 0.25 2 300 100 50 0.7 8 1", "R G B must be in 0..255, got 300 100 50"),
+        ("12 0.5 0.25 2 200 100 50 x 8 1", "X Y Z R G B ERROR must be numbers"),
+    ],
+)
+def test_malformed_points3d_text_names_the_line(
+    rgbd_scene: RgbdScene, tmp_path: Path, line: str, reason: str
+) -> None:
+    root = remove_depth(write_colmap(rgbd_scene, tmp_path, binary=False))
+    (root / "sparse" / "0" / "points3D.txt").write_text(f"# points\n{line}\n")
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    message = str(info.value)
+    assert message.startswith("sparse/0/points3D.txt:line 2: ") and reason in message
+
+
+def test_truncated_points3d_binary_names_the_point(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = remove_depth(write_colmap(rgbd_scene, tmp_path))
+    path = root / "sparse" / "0" / "points3D.bin"
+    path.write_bytes(path.read_bytes()[:-4])  # the track's last int32 cut off
+    with pytest.raises(
+        InputError,
+        match=r"^sparse/0/points3D\.bin: truncated at byte 59: "
+        r"point 1 \(id 12\): 1 track elements needs 8 bytes, 4 left",
+    ):
+        read_capture(root)
+
+
+def test_capture_with_depth_refuses_to_be_rgb_only(rgbd_scene: RgbdScene) -> None:
+    """``depth_source="none"`` promises all-0 depth: frames with depth contradict it."""
+    frames = scene_capture(rgbd_scene).frames
+    with pytest.raises(InputError, match="an RGB-only capture's depth must be all 0"):
+        Capture(frames, "colmap", depth_source="none")
 
 
 def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
@@ -302,3 +385,12 @@ def test_synth_scene_as_colmap(tmp_path: Path) -> None:
     """A ``dcseg synth`` capture written as a binary COLMAP model reads back the same."""
     scene = capture_scene(synth_capture(tmp_path / "s"))
     check_round_trip(scene, write_colmap(scene, tmp_path / "colmap"))
+
+
+def test_rgb_only_capture_is_not_written_as_a_manifest(
+    rgbd_scene: RgbdScene, tmp_path: Path
+) -> None:
+    capture = read_capture(remove_depth(write_colmap(rgbd_scene, tmp_path / "c")))
+    with pytest.raises(ValueError, match="RGB-only capture cannot be written"):
+        write_capture(capture, tmp_path / "manifest")
+    assert not (tmp_path / "manifest").exists()

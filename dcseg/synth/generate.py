@@ -256,6 +256,12 @@ def true_poses(cfg: SynthConfig) -> NDArray[np.float64]:
     return orbit_poses(cfg.frames, _rng(cfg, _CAMERA), np.zeros(3), CAMERA_RADII)
 
 
+def exposure_gains(cfg: SynthConfig) -> NDArray[np.float64]:
+    """``[frames, 3]`` every frame's R, G, B gain of ``cfg.exposure_spread``
+    (:func:`dcseg.synth.exposure.frame_gains`; ones at 0)."""
+    return frame_gains(cfg.frames, cfg.exposure_spread, _rng(cfg, _EXPOSURE))
+
+
 def _render_all(
     cfg: SynthConfig, camera: CameraModel, poses: NDArray[np.float64], timings: dict[str, float]
 ) -> tuple[list[SceneInstance], list[RenderedView]]:
@@ -298,7 +304,7 @@ def _simulate_frames(
     k = camera.intrinsics()
     maps = [ground_truth_maps(view.body, lookup) for view in views]
     segmenter = _Segmenter.start(cfg, by_id, normals, views, maps, poses, k.matrix())
-    gains = frame_gains(len(views), cfg.exposure_spread, _rng(cfg, _EXPOSURE))
+    gains = exposure_gains(cfg)
     frames: list[Frame] = []
     extras: dict[str, list[Any]] = {
         key: [] for key in ("agnostic", "semantic_map", "depth", "semantic", "instance", "scores")

@@ -58,6 +58,7 @@ def entry(report: dict[str, Any], truth: dict[str, list[float]], label: str) -> 
         "exposure": label,
         "psnr": report["psnr"],
         "psnr_colour_compensated": report.get("psnr_colour_compensated"),
+        "psnr_neighbour_exposure": report.get("psnr_neighbour_exposure"),
         "depth_mae": report["depth_mae"],
         "wall_seconds": report["wall_seconds"],
         "cpu_seconds": report["cpu_seconds"],
@@ -94,7 +95,7 @@ def main() -> int:
                 results[key]["command"] = " ".join(sys.argv)
                 args.results.parent.mkdir(parents=True, exist_ok=True)
                 args.results.write_text(json.dumps(results, indent=2) + "\n")
-                shown = ("psnr", "psnr_colour_compensated", "depth_mae", "wall_seconds")
+                shown = ("psnr", "psnr_colour_compensated", "psnr_neighbour_exposure", "depth_mae")
                 print(key, {k: results[key][k] for k in shown}, flush=True)
     return 0
 

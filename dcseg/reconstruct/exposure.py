@@ -152,8 +152,7 @@ class ColourCorrections:
 
     def apply(self, index: int, image: Tensor) -> Tensor:
         """``image`` (``[H, W, 3]``) under view ``index``'s transform (differentiable)."""
-        p = self.params[index]
-        return image * torch.exp(p[:3]).to(image) + p[3:].to(image)
+        return transformed(image, self.params[index])
 
     def penalty(self, index: int) -> Tensor:
         """``reg * (|g|^2 + BIAS_WEIGHT |b|^2)`` of view ``index``: the pull towards identity."""
@@ -167,6 +166,21 @@ class ColourCorrections:
     def step(self) -> None:
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+
+
+def transformed(image: Tensor, p: Tensor) -> Tensor:
+    """``image`` (``[H, W, 3]``) times ``exp(p[:3])`` plus ``p[3:]``."""
+    return image * torch.exp(p[:3]).to(image) + p[3:].to(image)
+
+
+def interpolated(trained: Sequence[int], transforms: Tensor, held_out: Sequence[int]) -> Tensor:
+    """``[len(held_out), 6]`` a transform per held-out frame, interpolated linearly in capture
+    order between the trained frames around it (``trained``: their capture indices, one per row
+    of ``transforms``; the nearest one past either end): auto exposure drifts smoothly in time,
+    so a held-out frame's exposure is predicted without looking at its image."""
+    values = transforms.detach().double().cpu().numpy()
+    columns = [np.interp(held_out, trained, values[:, c]) for c in range(values.shape[1])]
+    return torch.as_tensor(np.stack(columns, axis=1), dtype=transforms.dtype)
 
 
 def referenced(gaussians: Gaussians, params: Sequence[Tensor]) -> tuple[Gaussians, Tensor]:

@@ -17,6 +17,7 @@ from dcseg.reconstruct.exposure import (
     colour_changes,
     compensated_psnr,
     decide,
+    interpolated,
     pair_change,
     referenced,
 )
@@ -118,6 +119,17 @@ def test_held_out_views_report_raw_and_compensated_psnr() -> None:
     assert metrics.compensated_psnr >= metrics.psnr - 0.5
     per_view = [v.compensated_psnr for v in metrics.views]
     assert len(per_view) == 2 and np.mean(per_view) == pytest.approx(metrics.compensated_psnr)
+    assert math.isfinite(metrics.neighbour_psnr)  # exposure fitted: predicted for held-out views
+    off = fit_gaussians(capture, replace(TINY, iterations=20, holdout=4, exposure="off"))
+    assert math.isnan(off.metrics.neighbour_psnr) and math.isfinite(off.metrics.psnr)
+
+
+def test_a_held_out_frame_takes_the_exposure_of_the_trained_frames_around_it() -> None:
+    transforms = torch.tensor([[0.1] * 3 + [0.0] * 3, [0.3] * 3 + [0.02] * 3])
+    out = interpolated([1, 5], transforms, [0, 2, 6])
+    assert out[0, 0] == pytest.approx(0.1)  # before the first trained frame: its transform
+    assert out[1, 0] == pytest.approx(0.15) and out[1, 3] == pytest.approx(0.005)
+    assert out[2, 0] == pytest.approx(0.3)
 
 
 def test_auto_leaves_a_constant_exposure_alone() -> None:

@@ -102,7 +102,6 @@ def fit_gaussians(
     log.info("init: %d Gaussians, extent %.3f m, %d training views", len(init), extent, len(views))
     start = time.perf_counter()
     sensor = sensor_report(train, cfg.drop_flying_pixels, cfg.pose_lr > 0, cfg.depth_filter_window)
-    seconds["sensor"] = time.perf_counter() - start
     log_report(sensor)
     colour_on = _detect_exposure(train, cfg, sensor)
     seconds["sensor"] = time.perf_counter() - start

@@ -55,6 +55,8 @@ def summary(name: str, report: dict[str, Any], args: argparse.Namespace) -> dict
         "scene": name,
         "preset": args.preset,
         "psnr": report["psnr"],
+        "psnr_colour_compensated": report.get("psnr_colour_compensated"),
+        "psnr_neighbour_exposure": report.get("psnr_neighbour_exposure"),
         "depth_mae": report["depth_mae"],
         "surface_depth_mae": report.get("surface_depth_mae"),
         "geometry": report.get("geometry"),

@@ -79,6 +79,14 @@ def register(subparsers: Any) -> None:
         "(0-50; default 0 = sharp)",
     )
     parser.add_argument(
+        "--exposure-spread",
+        type=float,
+        default=0.0,
+        metavar="SD",
+        help="auto exposure and white balance: per-frame colour gains drifting smoothly along "
+        "the trajectory, log gain with this standard deviation (0-1; default 0 = constant)",
+    )
+    parser.add_argument(
         "--supersample",
         type=int,
         default=2,
@@ -121,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
             pose_error_m=args.pose_error_m,
             motion_blur_px=args.motion_blur,
             error_model=args.error_model,
+            exposure_spread=args.exposure_spread,
         )
     except ValueError as exc:
         sys.stderr.write(f"dcseg synth: {exc}\n")

@@ -89,6 +89,19 @@ class ReconstructConfig:
     pose_align_lr: float = option(2e-3, bounds=(1e-06, 0.1))
     """Starting rate of those alignment steps (decaying to a tenth)."""
 
+    # --- exposure and white balance (dcseg.reconstruct.exposure) ---
+    exposure: str = option("auto", choices=("auto", "on", "off"), flag="--exposure")
+    """A per-channel gain and bias per training view, fitted with the Gaussians and pulled
+    towards identity (auto exposure / white balance). ``auto``: on when consecutive frames'
+    colours at corresponding pixels change by more than 3 %."""
+
+    exposure_lr: float = option(0.02, bounds=(0.0, 1.0))
+    """Starting learning rate of the per-view transforms (decaying log-linearly to a tenth)."""
+
+    exposure_reg: float = option(0.01, bounds=(0.0, 100.0))
+    """Weight of the squared distance of each view's transform (log gains, biases) to identity
+    in the loss."""
+
     # --- initialisation from depth ---
     init_pixel_stride: int = option(2, bounds=(1, 64))
     """Back-project every ``stride``-th pixel along both axes of every training frame."""
@@ -223,6 +236,8 @@ class ReconstructConfig:
             )
         if not self.depth_filter_k > 0:
             raise ValueError(f"depth_filter_k must be > 0, got {self.depth_filter_k}")
+        if self.exposure not in ("auto", "on", "off"):
+            raise ValueError(f"exposure must be auto, on or off, got {self.exposure!r}")
         if self.pose_lr < 0:
             raise ValueError(f"pose_lr must be >= 0, got {self.pose_lr}")
         if self.pose_from < 0:

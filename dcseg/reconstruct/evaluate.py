@@ -3,6 +3,11 @@
 Depth is scored twice: the rendered mean depth (what training fits) and the surface depth
 (:func:`dcseg.render.surface_depth.surface_depth`: the first surface along each ray, not a
 blend with what lies behind it), which is what a depth map of the scene should show.
+
+Colour is scored twice too: the raw PSNR of the render, and the colour-compensated PSNR after
+the 3x3-plus-bias colour map that best fits the held-out image in least squares
+(:func:`dcseg.reconstruct.exposure.compensated_psnr`): held-out views have no learned
+exposure, and exposure-varying benchmarks score them this way.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from dataclasses import dataclass
 import torch
 
 from dcseg.gaussians import Gaussians
+from dcseg.reconstruct.exposure import compensated_psnr, transformed
 from dcseg.reconstruct.fit import render_view
 from dcseg.reconstruct.losses import psnr
 from dcseg.reconstruct.views import View
@@ -30,6 +36,9 @@ class ViewMetrics:
         depth_mae: mean absolute depth error in metres over valid depth pixels (NaN if none).
         surface_depth_mae: the same for the surface depth.
         depth_pixels: number of valid depth pixels.
+        compensated_psnr: colour PSNR after the best affine colour map (module docstring).
+        neighbour_psnr: colour PSNR under the exposure predicted from the neighbouring trained
+            frames (:func:`dcseg.reconstruct.exposure.interpolated`); NaN without exposure.
     """
 
     name: str
@@ -37,6 +46,8 @@ class ViewMetrics:
     depth_mae: float
     surface_depth_mae: float
     depth_pixels: int
+    compensated_psnr: float = math.nan
+    neighbour_psnr: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -48,18 +59,29 @@ class Metrics:
         psnr: mean PSNR over views (NaN without views).
         depth_mae: depth error averaged over all valid pixels of all views (NaN if none).
         surface_depth_mae: the same for the surface depth.
+        compensated_psnr: mean colour-compensated PSNR over views (NaN without views).
+        neighbour_psnr: mean PSNR under the neighbours' exposure (NaN without exposure).
     """
 
     views: tuple[ViewMetrics, ...]
     psnr: float
     depth_mae: float
     surface_depth_mae: float
+    compensated_psnr: float = math.nan
+    neighbour_psnr: float = math.nan
 
 
 def evaluate_view(
-    gaussians: Gaussians, view: View, degree: int, backend: str | None, *, planar: bool = False
+    gaussians: Gaussians,
+    view: View,
+    degree: int,
+    backend: str | None,
+    *,
+    planar: bool = False,
+    colour: torch.Tensor | None = None,
 ) -> ViewMetrics:
-    """Render ``view`` and compare with its colour and valid depth (``planar``: ray-plane)."""
+    """Render ``view`` and compare with its colour and valid depth (``planar``: ray-plane;
+    ``colour``: the view's predicted exposure transform, for ``neighbour_psnr``)."""
     with torch.no_grad():
         out = render_view(gaussians, view.camera, degree, backend, planar=planar)
     surface = surface_depth(gaussians, view.camera, planar=planar)
@@ -67,7 +89,11 @@ def evaluate_view(
     mean_error = _mae(out.depth, view.depth, valid)
     surface_error = _mae(surface.to(view.depth), view.depth, valid)
     count = int(valid.sum())
-    return ViewMetrics(view.name, psnr(out.values, view.rgb), mean_error, surface_error, count)
+    raw, compensated = psnr(out.values, view.rgb), compensated_psnr(out.values, view.rgb)
+    neighbour = math.nan
+    if colour is not None:
+        neighbour = psnr(transformed(out.values, colour.to(out.values.device)), view.rgb)
+    return ViewMetrics(view.name, raw, mean_error, surface_error, count, compensated, neighbour)
 
 
 def _mae(depth: torch.Tensor, truth: torch.Tensor, valid: torch.Tensor) -> float:
@@ -82,16 +108,28 @@ def evaluate(
     backend: str | None = None,
     *,
     planar: bool = False,
+    colours: torch.Tensor | None = None,
 ) -> Metrics:
     """Metrics of ``gaussians`` on ``views`` at the Gaussians' full SH degree; ``planar``: depth
-    rendered as each flat Gaussian's ray-plane depth, as the reconstruction trained it."""
+    rendered as each flat Gaussian's ray-plane depth, as the reconstruction trained it;
+    ``colours``: ``[len(views), 6]`` every view's predicted exposure transform, or None."""
     degree = gaussians.sh_degree
-    per_view = tuple(evaluate_view(gaussians, v, degree, backend, planar=planar) for v in views)
+    predicted = [None] * len(views) if colours is None else list(colours)
+    per_view = tuple(
+        evaluate_view(gaussians, v, degree, backend, planar=planar, colour=c)
+        for v, c in zip(views, predicted, strict=True)
+    )
     pixels = sum(v.depth_pixels for v in per_view)
-    mean_psnr = sum(v.psnr for v in per_view) / len(per_view) if per_view else math.nan
+    mean_psnr = _mean([v.psnr for v in per_view])
     mean = _pooled([(v.depth_mae, v.depth_pixels) for v in per_view], pixels)
     surface = _pooled([(v.surface_depth_mae, v.depth_pixels) for v in per_view], pixels)
-    return Metrics(per_view, mean_psnr, mean, surface)
+    compensated = _mean([v.compensated_psnr for v in per_view])
+    neighbour = _mean([v.neighbour_psnr for v in per_view])
+    return Metrics(per_view, mean_psnr, mean, surface, compensated, neighbour)
+
+
+def _mean(values: Sequence[float]) -> float:
+    return sum(values) / len(values) if values else math.nan
 
 
 def _pooled(errors: Sequence[tuple[float, int]], pixels: int) -> float:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -19,6 +19,7 @@ from dcseg.reconstruct.densify import (
     reset_opacity,
     view_space_grad_norm,
 )
+from dcseg.reconstruct.exposure import ColourCorrections, referenced
 from dcseg.reconstruct.init import auto_voxel_size
 from dcseg.reconstruct.losses import depth_l1, rgb_loss
 from dcseg.reconstruct.poses import PoseCorrections, corrected_camera, move_gaussians
@@ -42,11 +43,15 @@ class FitResult:
         losses: the training loss of every step.
         corrections: per training view its fitted pose correction (``[6]``, detached;
             :mod:`dcseg.reconstruct.poses`), None when poses are not refined.
+        colour: ``[V, 6]`` per training view its fitted colour transform (log gains, biases
+            of R, G, B) relative to the exported Gaussians' reference exposure
+            (:func:`dcseg.reconstruct.exposure.referenced`), None when exposure is not fitted.
     """
 
     gaussians: Gaussians
     losses: tuple[float, ...]
     corrections: tuple[Tensor, ...] | None = None
+    colour: Tensor | None = None
 
 
 def to_params(gaussians: Gaussians) -> Params:
@@ -160,6 +165,7 @@ class _Trainer:
     extent: float
     generator: torch.Generator
     poses: PoseCorrections | None = None
+    colour: ColourCorrections | None = None
 
     def step(self, it: int, view: View, index: int) -> float:
         cfg = self.cfg
@@ -176,7 +182,12 @@ class _Trainer:
             gaussians = move_gaussians(gaussians, delta, camera)
             camera = corrected_camera(camera, delta)
         out = render_view(gaussians, view.camera, degree, cfg.backend, planar=cfg.planar_depth)
+        colour = self.colour
+        if colour is not None:
+            out = replace(out, values=colour.apply(index, out.values))
         loss = step_loss(out, view, cfg)
+        if colour is not None:
+            loss = loss + colour.penalty(index)
         torch.autograd.backward(loss)
         if it < cfg.densify_until:
             self._accumulate(camera)
@@ -185,6 +196,9 @@ class _Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         if poses is not None:
             poses.step()
+        if colour is not None:
+            colour.set_lr(decayed(it, cfg.iterations, cfg.exposure_lr))
+            colour.step()
         self._control(it + 1)
         return float(loss.detach())
 
@@ -233,6 +247,7 @@ def optimise(
     *,
     fine_views: Sequence[View] | None = None,
     on_progress: ProgressCallback | None = None,
+    exposure: bool = False,
 ) -> FitResult:
     """Optimise ``init`` against ``views`` for ``cfg.iterations`` steps.
 
@@ -243,6 +258,8 @@ def optimise(
         extent: the scene radius that scales position learning rates and density control.
         fine_views: the same views at full resolution, used from step ``cfg.full_res_from``.
         on_progress: called as ``on_progress(iteration, total, loss)`` after every step.
+        exposure: fit a colour transform per view (:mod:`dcseg.reconstruct.exposure`); the
+            returned Gaussians then hold the colours of the views' mean exposure.
 
     Returns:
         The optimised Gaussians and the loss of every step.
@@ -267,6 +284,7 @@ def optimise(
         extent=extent,
         generator=generator,
         poses=poses,
+        colour=_colour(exposure, len(views), cfg, init.device),
     )
     losses: list[float] = []
     for it, index in enumerate(_view_order(len(views), cfg.iterations, generator)):
@@ -278,4 +296,15 @@ def optimise(
         if on_progress is not None:
             on_progress(it + 1, cfg.iterations, losses[-1])
     corrections = None if poses is None else tuple(d.detach() for d in poses.deltas)
-    return FitResult(from_params(trainer.params).detach(), tuple(losses), corrections)
+    gaussians, transforms = from_params(trainer.params).detach(), None
+    if trainer.colour is not None:
+        gaussians, transforms = referenced(gaussians, trainer.colour.params)
+    return FitResult(gaussians, tuple(losses), corrections, transforms)
+
+
+def _colour(
+    on: bool, n_views: int, cfg: ReconstructConfig, device: torch.device
+) -> ColourCorrections | None:
+    if not on:
+        return None
+    return ColourCorrections.identity(n_views, cfg.exposure_lr, cfg.exposure_reg, device)

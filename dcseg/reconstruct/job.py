@@ -62,12 +62,16 @@ def _report(
     metrics = result.metrics
     return {
         "psnr": _finite(metrics.psnr),
+        "psnr_colour_compensated": _finite(metrics.compensated_psnr),
+        "psnr_neighbour_exposure": _finite(metrics.neighbour_psnr),
         "depth_mae": _finite(metrics.depth_mae),
         "surface_depth_mae": _finite(metrics.surface_depth_mae),
         "views": [
             {
                 "name": v.name,
                 "psnr": _finite(v.psnr),
+                "psnr_colour_compensated": _finite(v.compensated_psnr),
+                "psnr_neighbour_exposure": _finite(v.neighbour_psnr),
                 "depth_mae": _finite(v.depth_mae),
                 "surface_depth_mae": _finite(v.surface_depth_mae),
                 "depth_pixels": v.depth_pixels,

@@ -9,7 +9,8 @@ evenly spread, for the per-pixel measurements):
   they were dropped;
 * ``exposure``: every frame's mean brightness (Rec. 601 luma of its colour): the spread over
   frames and the largest change between consecutive frames, which a changing exposure or white
-  balance shows as much as a changing view (no per-view colour correction exists yet);
+  balance shows as much as a changing view (the reconstruction adds what
+  :mod:`dcseg.reconstruct.exposure` measures at corresponding pixels and fits);
 * ``poses``: how well consecutive frames' depth agrees once one is projected into the other
   with the capture's poses, next to what the measured noise alone explains: a ratio well above
   1 points at pose (or depth-to-colour) misalignment.
@@ -107,7 +108,6 @@ def exposure(frames: Sequence[Frame]) -> dict[str, Any]:
         "min": float(means.min()),
         "max": float(means.max()),
         "largest_consecutive_change": float(max(steps)),
-        "corrected": False,
     }
 
 
@@ -212,8 +212,7 @@ def log_report(report: dict[str, Any]) -> None:
     )
     ex = report["exposure"]
     log.info(
-        "brightness: spread %.1f %% over frames, largest change between frames %.1f %% "
-        "(not corrected)",
+        "brightness: spread %.1f %% over frames, largest change between frames %.1f %%",
         100 * ex["spread"],
         100 * ex["largest_consecutive_change"],
     )

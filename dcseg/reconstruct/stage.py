@@ -13,6 +13,7 @@ import torch
 from numpy.typing import NDArray
 
 from dcseg.gaussians import Gaussians
+from dcseg.reconstruct import exposure
 from dcseg.reconstruct.align import align_pose
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.depth_filter import DepthFilter
@@ -109,14 +110,22 @@ def fit_gaussians(
             train, cfg.drop_flying_pixels, cfg.pose_lr > 0, cfg.depth_filter_window
         )
         log_report(sensor)
-    else:
+        colour_on = _detect_exposure(train, cfg, sensor)
+    else:  # the detection matches pixels through depth: only an explicit "on" fits one
         sensor = rgb_only_report(capture, train)
+        colour_on = cfg.exposure == "on"
     seconds["sensor"] = time.perf_counter() - start
     noise = sensor["depth"]["noise"]["a_at_1m"] if sensor and capture.has_depth else None
 
     start = time.perf_counter()
-    fitted = optimise(init, views, cfg, extent, fine_views=fine, on_progress=on_progress)
+    fitted = optimise(
+        init, views, cfg, extent, fine_views=fine, on_progress=on_progress, exposure=colour_on
+    )
     seconds["train"] = time.perf_counter() - start
+    if fitted.colour is not None and sensor:
+        summary = exposure.gains_summary(fitted.colour, [f.name for f in train])
+        sensor["exposure"]["fitted"] = summary
+        exposure.log_fitted(summary)
 
     poses = None
     if fitted.corrections is not None:
@@ -127,11 +136,16 @@ def fit_gaussians(
         _log_change({f.name: f.c2w for f in capture.frames}, poses)
     start = time.perf_counter()
     held_out = [make_view(f, 1, device) for f in test]
-    metrics = evaluate(fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth)
+    colours = _held_out_exposure(fitted, capture, train, test)
+    metrics = evaluate(
+        fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth, colours=colours
+    )
     seconds["eval"] = time.perf_counter() - start
     log.info(
-        "held-out PSNR %.2f dB, depth MAE %.4f m (surface depth %.4f m)",
-        metrics.psnr, metrics.depth_mae, metrics.surface_depth_mae,
+        "held-out PSNR %.2f dB (colour-compensated %.2f dB, under the neighbours' exposure "
+        "%.2f dB), depth MAE %.4f m (surface depth %.4f m)",
+        metrics.psnr, metrics.compensated_psnr, metrics.neighbour_psnr, metrics.depth_mae,
+        metrics.surface_depth_mae,
     )  # fmt: skip
     return Reconstruction(
         gaussians=fitted.gaussians,
@@ -147,6 +161,32 @@ def fit_gaussians(
         original_poses=None if poses is None else {f.name: f.c2w for f in capture.frames},
         sensor=sensor,
     )
+
+
+def _held_out_exposure(
+    fitted: FitResult, capture: Capture, train: Sequence[Frame], test: Sequence[Frame]
+) -> torch.Tensor | None:
+    """Every held-out frame's exposure predicted from the trained frames around it in capture
+    order (:func:`exposure.interpolated`); None when no exposure was fitted."""
+    if fitted.colour is None or not test:
+        return None
+    order = {f.name: i for i, f in enumerate(capture.frames)}
+    trained = [order[f.name] for f in train]
+    return exposure.interpolated(trained, fitted.colour, [order[f.name] for f in test])
+
+
+def _detect_exposure(
+    train: Sequence[Frame], cfg: ReconstructConfig, sensor: dict[str, Any]
+) -> bool:
+    """Whether a colour transform per view is fitted (:func:`exposure.decide`); the detection
+    goes into ``sensor["exposure"]`` and the log."""
+    measured = exposure.colour_changes(train)
+    on = exposure.decide(cfg.exposure, measured)
+    if sensor:
+        report = exposure.detection_report(measured, cfg.exposure, on)
+        sensor["exposure"].update(report)
+        exposure.log_detection(report)
+    return on
 
 
 def _log_change(

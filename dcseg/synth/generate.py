@@ -27,6 +27,7 @@ from dcseg.synth.errors import (
     ViewTruth,
     error_model,
 )
+from dcseg.synth.exposure import MAX_SPREAD, exposed, frame_gains
 from dcseg.synth.failures import REALISTIC_VOCABULARY
 from dcseg.synth.noise import NOISE_LEVELS, NoiseLevel, noisy_depth
 from dcseg.synth.render import (
@@ -48,7 +49,7 @@ GT_VOXEL = 0.02
 CAMERA_RADII = (2.1, 1.6)
 
 # Independent random streams, so that changing one stage leaves the others' draws alone.
-_SCENE, _CAMERA, _AGNOSTIC, _SEMANTIC, _DEPTH, _PARTS, _FATES, _POSE = range(8)
+_SCENE, _CAMERA, _AGNOSTIC, _SEMANTIC, _DEPTH, _PARTS, _FATES, _POSE, _EXPOSURE = range(9)
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,10 @@ class SynthConfig:
             the next pose of the trajectory (:mod:`dcseg.synth.blur`), with a median blur
             length of this many pixels; depth, masks and ground truth stay sharp (a depth
             sensor's own exposure is short). 0 = sharp.
+        exposure_spread: auto exposure and white balance (:mod:`dcseg.synth.exposure`): every
+            frame's colour times a per-channel gain that drifts smoothly along the trajectory,
+            the log exposure gain with this standard deviation over the frames (0.2: about
+            +-20 %); colour only. 0 = constant exposure.
         error_model: a generator of :data:`~dcseg.synth.errors.ERROR_MODELS` makes the masks
             instead of the noise level (which then sets the depth noise only); "" = the
             level's own masks (``realistic`` for the ``realistic`` level).
@@ -92,6 +97,7 @@ class SynthConfig:
     pose_error_m: float = 0.0
     motion_blur_px: float = 0.0
     error_model: str = ""
+    exposure_spread: float = 0.0
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -113,6 +119,10 @@ class SynthConfig:
         if not 0.0 <= self.motion_blur_px <= MAX_BLUR_PX:
             raise ValueError(
                 f"motion_blur_px must be between 0 and {MAX_BLUR_PX:g}, got {self.motion_blur_px}"
+            )
+        if not 0.0 <= self.exposure_spread <= MAX_SPREAD:
+            raise ValueError(
+                f"exposure_spread must be between 0 and {MAX_SPREAD:g}, got {self.exposure_spread}"
             )
         if self.error_model and self.error_model not in ERROR_MODELS:
             raise ValueError(
@@ -246,6 +256,12 @@ def true_poses(cfg: SynthConfig) -> NDArray[np.float64]:
     return orbit_poses(cfg.frames, _rng(cfg, _CAMERA), np.zeros(3), CAMERA_RADII)
 
 
+def exposure_gains(cfg: SynthConfig) -> NDArray[np.float64]:
+    """``[frames, 3]`` every frame's R, G, B gain of ``cfg.exposure_spread``
+    (:func:`dcseg.synth.exposure.frame_gains`; ones at 0)."""
+    return frame_gains(cfg.frames, cfg.exposure_spread, _rng(cfg, _EXPOSURE))
+
+
 def _render_all(
     cfg: SynthConfig, camera: CameraModel, poses: NDArray[np.float64], timings: dict[str, float]
 ) -> tuple[list[SceneInstance], list[RenderedView]]:
@@ -288,6 +304,7 @@ def _simulate_frames(
     k = camera.intrinsics()
     maps = [ground_truth_maps(view.body, lookup) for view in views]
     segmenter = _Segmenter.start(cfg, by_id, normals, views, maps, poses, k.matrix())
+    gains = exposure_gains(cfg)
     frames: list[Frame] = []
     extras: dict[str, list[Any]] = {
         key: [] for key in ("agnostic", "semantic_map", "depth", "semantic", "instance", "scores")
@@ -298,7 +315,7 @@ def _simulate_frames(
         out = segmenter.view(cfg, i, ViewTruth(inst_map, class_map, xyz, view.depth))
         depth = noisy_depth(view.depth, level, _rng(cfg, _DEPTH, i))
         pose = perturbed_pose(c2w, cfg.pose_error_deg, cfg.pose_error_m, _rng(cfg, _POSE, i))
-        rgb = _blurred(cfg, view, k.matrix(), poses, i)
+        rgb = exposed(_blurred(cfg, view, k.matrix(), poses, i), gains[i])
         frames.append(Frame(name, rgb, depth, k, pose))
         extras["agnostic"].append(masks_from_dense(name, out.masks))
         extras["scores"].append(out.scores)

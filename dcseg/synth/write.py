@@ -106,6 +106,7 @@ def scene_summary(scene: SynthScene, timings: dict[str, float]) -> dict[str, Any
         "noise_level": asdict(cfg.level()),
         "pose_error": {"deg": cfg.pose_error_deg, "m": cfg.pose_error_m},
         "motion_blur_px": cfg.motion_blur_px,
+        "exposure_spread": cfg.exposure_spread,
         "instances": [inst.record() for inst in scene.instances],
         "gt_points": len(scene.ground_truth.labels),
         "timings": {k: round(v, 3) for k, v in timings.items()},

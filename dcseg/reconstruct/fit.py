@@ -119,9 +119,15 @@ def render_view(
     return render(gaussians, colours, camera, backend=backend)
 
 
-def step_loss(out: RenderOutput, view: View, cfg: ReconstructConfig) -> Tensor:
-    """``(1 - l) * L1 + l * (1 - SSIM)`` on RGB plus the weighted depth L1 on valid pixels."""
+def step_loss(
+    out: RenderOutput, view: View, cfg: ReconstructConfig, colour_weight: float = 1.0
+) -> Tensor:
+    """``(1 - l) * L1 + l * (1 - SSIM)`` on RGB times ``colour_weight`` (below 1 for a
+    motion-blurred view, :mod:`dcseg.reconstruct.sharpness`) plus the weighted depth L1 on
+    valid pixels."""
     loss = rgb_loss(out.values, view.rgb, cfg.ssim_lambda)
+    if colour_weight != 1.0:
+        loss = colour_weight * loss
     if cfg.depth_weight > 0:
         loss = loss + cfg.depth_weight * depth_l1(out.depth, view.depth)
     return loss
@@ -160,6 +166,7 @@ class _Trainer:
     extent: float
     generator: torch.Generator
     poses: PoseCorrections | None = None
+    colour_weights: tuple[float, ...] | None = None
 
     def step(self, it: int, view: View, index: int) -> float:
         cfg = self.cfg
@@ -176,7 +183,8 @@ class _Trainer:
             gaussians = move_gaussians(gaussians, delta, camera)
             camera = corrected_camera(camera, delta)
         out = render_view(gaussians, view.camera, degree, cfg.backend, planar=cfg.planar_depth)
-        loss = step_loss(out, view, cfg)
+        weight = 1.0 if self.colour_weights is None else self.colour_weights[index]
+        loss = step_loss(out, view, cfg, weight)
         torch.autograd.backward(loss)
         if it < cfg.densify_until:
             self._accumulate(camera)
@@ -233,6 +241,7 @@ def optimise(
     *,
     fine_views: Sequence[View] | None = None,
     on_progress: ProgressCallback | None = None,
+    colour_weights: Sequence[float] | None = None,
 ) -> FitResult:
     """Optimise ``init`` against ``views`` for ``cfg.iterations`` steps.
 
@@ -243,12 +252,15 @@ def optimise(
         extent: the scene radius that scales position learning rates and density control.
         fine_views: the same views at full resolution, used from step ``cfg.full_res_from``.
         on_progress: called as ``on_progress(iteration, total, loss)`` after every step.
+        colour_weights: per view the weight of its colour loss (None = all 1).
 
     Returns:
         The optimised Gaussians and the loss of every step.
     """
     if not views:
         raise ValueError("no training views")
+    if colour_weights is not None and len(colour_weights) != len(views):
+        raise ValueError("colour_weights must hold one weight per view")
     if fine_views is not None and len(fine_views) != len(views):
         raise ValueError("fine_views must hold the same views as views")
     switch = (
@@ -267,6 +279,7 @@ def optimise(
         extent=extent,
         generator=generator,
         poses=poses,
+        colour_weights=None if colour_weights is None else tuple(map(float, colour_weights)),
     )
     losses: list[float] = []
     for it, index in enumerate(_view_order(len(views), cfg.iterations, generator)):

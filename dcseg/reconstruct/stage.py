@@ -21,6 +21,7 @@ from dcseg.reconstruct.fit import FitResult, ProgressCallback, optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
 from dcseg.reconstruct.poses import change_stats, corrected_c2w
 from dcseg.reconstruct.sensor import log_report, sensor_report
+from dcseg.reconstruct.sharpness import blur_decision, log_decision
 from dcseg.reconstruct.views import make_view, split_frames
 from dcseg.types import Capture, Frame
 
@@ -104,9 +105,15 @@ def fit_gaussians(
     seconds["sensor"] = time.perf_counter() - start
     log_report(sensor)
     noise = sensor["depth"]["noise"]["a_at_1m"] if sensor else None
+    blur = blur_decision(train, cfg.blurred_frames)
+    log_decision(blur)
+    sensor["motion_blur"] = blur.report([f.name for f in train])
 
     start = time.perf_counter()
-    fitted = optimise(init, views, cfg, extent, fine_views=fine, on_progress=on_progress)
+    fitted = optimise(
+        init, views, cfg, extent, fine_views=fine, on_progress=on_progress,
+        colour_weights=tuple(blur.weights),
+    )  # fmt: skip
     seconds["train"] = time.perf_counter() - start
 
     poses = None

@@ -139,7 +139,13 @@ class ReconstructConfig:
     depth_weight: float = option(0.5, bounds=(0.0, 100.0))
     """Weight of the L1 loss on expected depth at valid depth pixels (metres)."""
 
-    blurred_frames: str = option("weight", choices=("weight", "skip", "off"))
+    blurred_frames: str = option(
+        "weight",
+        choices=("weight", "skip", "off"),
+        flag="--blurred-frames",
+        help="motion-blurred training frames: weight their colour loss by their sharpness, "
+        "skip it where sharp neighbours see them, or train them as they are",
+    )
     """Training frames far less sharp than their neighbours along the trajectory are
     motion-blurred (:mod:`dcseg.reconstruct.sharpness`): ``weight`` scales their colour loss
     by their relative sharpness, ``skip`` drops their colour loss where sharp neighbours see

@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -55,16 +56,18 @@ of its depth pixels (:func:`covered`)."""
 COVER_GRID = 8
 """The coverage check projects every this-many-th pixel along both axes."""
 
-LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
-"""Rec. 601 luma weights of R, G, B."""
-
 
 def luma(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
-    """``[h, w]`` luma in [0, 1] of ``rgb`` area-averaged to about :data:`WORK_WIDTH`."""
+    """``[h, w]`` luma in [0, 1] of ``rgb`` area-averaged to about :data:`WORK_WIDTH`.
+
+    OpenCV's Rec. 601 grey (rounded to 8 bits at full resolution, an error the averaging
+    shrinks) then a float area average: 1.7 ms for a 640x480 frame where the same in numpy
+    took 7-12 ms."""
     factor = max(1, round(rgb.shape[1] / WORK_WIDTH))
     h, w = rgb.shape[0] // factor, rgb.shape[1] // factor
-    grey = np.asarray(rgb[: h * factor, : w * factor], dtype=np.float32) @ LUMA
-    out: NDArray[np.float32] = grey.reshape(h, factor, w, factor).mean(axis=(1, 3)) / 255.0
+    grey = cv2.cvtColor(np.ascontiguousarray(rgb[: h * factor, : w * factor]), cv2.COLOR_RGB2GRAY)
+    small = cv2.resize(grey.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    out: NDArray[np.float32] = small / np.float32(255.0)
     return out
 
 

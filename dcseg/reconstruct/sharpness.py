@@ -229,10 +229,12 @@ def log_decision(decision: BlurDecision) -> None:
     """One log line: how many frames are blurred and what was done with them."""
     n, blurred = len(decision.scores), int(decision.blurred.sum())
     done = {
-        "weight": "colour loss weighted by their score",
+        "weight": "their colour loss weighted by their score",
         "skip": f"{int((decision.weights == 0).sum())} skipped for colour, the rest weighted",
         "off": "not handled (blurred_frames off)",
     }[decision.mode]
+    if blurred == 0:
+        done = "all trained as they are"
     lowest = float(decision.scores.min()) if n else 1.0
     log.info(
         "motion blur: %d of %d training frames blurred (below %.0f %% of their neighbours' "

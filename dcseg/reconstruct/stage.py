@@ -102,12 +102,12 @@ def fit_gaussians(
     log.info("init: %d Gaussians, extent %.3f m, %d training views", len(init), extent, len(views))
     start = time.perf_counter()
     sensor = sensor_report(train, cfg.drop_flying_pixels, cfg.pose_lr > 0, cfg.depth_filter_window)
+    blur = blur_decision(train, cfg.blurred_frames)
+    sensor["motion_blur"] = blur.report([f.name for f in train])
     seconds["sensor"] = time.perf_counter() - start
     log_report(sensor)
-    noise = sensor["depth"]["noise"]["a_at_1m"] if sensor else None
-    blur = blur_decision(train, cfg.blurred_frames)
     log_decision(blur)
-    sensor["motion_blur"] = blur.report([f.name for f in train])
+    noise = sensor["depth"]["noise"]["a_at_1m"] if sensor else None
 
     start = time.perf_counter()
     fitted = optimise(

@@ -140,10 +140,12 @@ def ensure_scene(scene: Path, cfg: SynthConfig) -> None:
         "frames": cfg.frames,
         "pose_error": {"deg": cfg.pose_error_deg, "m": cfg.pose_error_m},
         "motion_blur_px": cfg.motion_blur_px,
+        "motion_blur_share": cfg.motion_blur_share,
         "depth_sigma": cfg.level().depth_sigma,
         "error_model": cfg.segmenter(),
     }
     found = {key: made.get(key) for key in wanted}
+    found["motion_blur_share"] = made.get("motion_blur_share", 1.0)  # before the share
     if "error_model" not in made:  # scenes made before the generators: the level's masks
         found["error_model"] = "realistic" if made["noise"] == "realistic" else None
     found["depth_sigma"] = made["noise_level"]["depth_sigma"]

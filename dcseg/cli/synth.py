@@ -87,6 +87,13 @@ def register(subparsers: Any) -> None:
         "the trajectory, log gain with this standard deviation (0-1; default 0 = constant)",
     )
     parser.add_argument(
+        "--motion-blur-share",
+        type=float,
+        default=1.0,
+        metavar="SHARE",
+        help="share of the views --motion-blur blurs, drawn at random (0-1; default 1 = all)",
+    )
+    parser.add_argument(
         "--supersample",
         type=int,
         default=2,
@@ -128,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
             pose_error_deg=args.pose_error_deg,
             pose_error_m=args.pose_error_m,
             motion_blur_px=args.motion_blur,
+            motion_blur_share=args.motion_blur_share,
             error_model=args.error_model,
             exposure_spread=args.exposure_spread,
         )

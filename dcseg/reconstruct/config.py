@@ -152,6 +152,20 @@ class ReconstructConfig:
     depth_weight: float = option(0.5, bounds=(0.0, 100.0))
     """Weight of the L1 loss on expected depth at valid depth pixels (metres)."""
 
+    blurred_frames: str = option(
+        "weight",
+        choices=("weight", "skip", "off"),
+        flag="--blurred-frames",
+        help="motion-blurred training frames: weight their colour loss by their sharpness, "
+        "skip it where sharp neighbours see them, or train them as they are",
+    )
+    """Training frames far less sharp than their neighbours along the trajectory are
+    motion-blurred (:mod:`dcseg.reconstruct.sharpness`): ``weight`` scales their colour loss
+    by their relative sharpness, ``skip`` drops their colour loss where sharp neighbours see
+    what they see (weights it elsewhere), ``off`` trains them as they are. Depth is trained
+    either way. Sharp captures are unaffected (every weight stays 1). ``reconstruction.json``
+    reports the scores (``sensor.motion_blur``)."""
+
     # --- optimiser (Adam, eps 1e-15) ---
     means_lr_init: float = option(1.6e-4, bounds=(0.0, 1.0))
     """Initial position learning rate, times the scene extent."""
@@ -246,6 +260,10 @@ class ReconstructConfig:
             raise ValueError(f"pose_align_lr must be > 0, got {self.pose_align_lr}")
         if self.pose_align_steps < 0:
             raise ValueError(f"pose_align_steps must be >= 0, got {self.pose_align_steps}")
+        if self.blurred_frames not in ("weight", "skip", "off"):
+            raise ValueError(
+                f"blurred_frames must be weight, skip or off, got {self.blurred_frames!r}"
+            )
         if self.max_init_points < 1:
             raise ValueError(f"max_init_points must be >= 1, got {self.max_init_points}")
 

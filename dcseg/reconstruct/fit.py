@@ -124,9 +124,15 @@ def render_view(
     return render(gaussians, colours, camera, backend=backend)
 
 
-def step_loss(out: RenderOutput, view: View, cfg: ReconstructConfig) -> Tensor:
-    """``(1 - l) * L1 + l * (1 - SSIM)`` on RGB plus the weighted depth L1 on valid pixels."""
+def step_loss(
+    out: RenderOutput, view: View, cfg: ReconstructConfig, colour_weight: float = 1.0
+) -> Tensor:
+    """``(1 - l) * L1 + l * (1 - SSIM)`` on RGB times ``colour_weight`` (below 1 for a
+    motion-blurred view, :mod:`dcseg.reconstruct.sharpness`) plus the weighted depth L1 on
+    valid pixels."""
     loss = rgb_loss(out.values, view.rgb, cfg.ssim_lambda)
+    if colour_weight != 1.0:
+        loss = colour_weight * loss
     if cfg.depth_weight > 0:
         loss = loss + cfg.depth_weight * depth_l1(out.depth, view.depth)
     return loss
@@ -166,6 +172,7 @@ class _Trainer:
     generator: torch.Generator
     poses: PoseCorrections | None = None
     colour: ColourCorrections | None = None
+    colour_weights: tuple[float, ...] | None = None
 
     def step(self, it: int, view: View, index: int) -> float:
         cfg = self.cfg
@@ -185,7 +192,8 @@ class _Trainer:
         colour = self.colour
         if colour is not None:
             out = replace(out, values=colour.apply(index, out.values))
-        loss = step_loss(out, view, cfg)
+        weight = 1.0 if self.colour_weights is None else self.colour_weights[index]
+        loss = step_loss(out, view, cfg, weight)
         if colour is not None:
             loss = loss + colour.penalty(index)
         torch.autograd.backward(loss)
@@ -248,6 +256,7 @@ def optimise(
     fine_views: Sequence[View] | None = None,
     on_progress: ProgressCallback | None = None,
     exposure: bool = False,
+    colour_weights: Sequence[float] | None = None,
 ) -> FitResult:
     """Optimise ``init`` against ``views`` for ``cfg.iterations`` steps.
 
@@ -260,12 +269,15 @@ def optimise(
         on_progress: called as ``on_progress(iteration, total, loss)`` after every step.
         exposure: fit a colour transform per view (:mod:`dcseg.reconstruct.exposure`); the
             returned Gaussians then hold the colours of the views' mean exposure.
+        colour_weights: per view the weight of its colour loss (None = all 1).
 
     Returns:
         The optimised Gaussians and the loss of every step.
     """
     if not views:
         raise ValueError("no training views")
+    if colour_weights is not None and len(colour_weights) != len(views):
+        raise ValueError("colour_weights must hold one weight per view")
     if fine_views is not None and len(fine_views) != len(views):
         raise ValueError("fine_views must hold the same views as views")
     switch = (
@@ -285,6 +297,7 @@ def optimise(
         generator=generator,
         poses=poses,
         colour=_colour(exposure, len(views), cfg, init.device),
+        colour_weights=None if colour_weights is None else tuple(map(float, colour_weights)),
     )
     losses: list[float] = []
     for it, index in enumerate(_view_order(len(views), cfg.iterations, generator)):

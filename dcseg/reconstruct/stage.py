@@ -23,6 +23,7 @@ from dcseg.reconstruct.init import init_from_frames, scene_extent
 from dcseg.reconstruct.poses import change_stats, corrected_c2w
 from dcseg.reconstruct.rgbonly import rgb_only_init, rgb_only_report
 from dcseg.reconstruct.sensor import log_report, sensor_report
+from dcseg.reconstruct.sharpness import blur_decision, log_decision
 from dcseg.reconstruct.views import make_view, split_frames
 from dcseg.types import Capture, Frame
 
@@ -114,13 +115,17 @@ def fit_gaussians(
     else:  # the detection matches pixels through depth: only an explicit "on" fits one
         sensor = rgb_only_report(capture, train)
         colour_on = cfg.exposure == "on"
+    blur = blur_decision(train, cfg.blurred_frames)
+    sensor["motion_blur"] = blur.report([f.name for f in train])
+    log_decision(blur)
     seconds["sensor"] = time.perf_counter() - start
     noise = sensor["depth"]["noise"]["a_at_1m"] if sensor and capture.has_depth else None
 
     start = time.perf_counter()
     fitted = optimise(
-        init, views, cfg, extent, fine_views=fine, on_progress=on_progress, exposure=colour_on
-    )
+        init, views, cfg, extent, fine_views=fine, on_progress=on_progress, exposure=colour_on,
+        colour_weights=tuple(blur.weights),
+    )  # fmt: skip
     seconds["train"] = time.perf_counter() - start
     if fitted.colour is not None and sensor:
         summary = exposure.gains_summary(fitted.colour, [f.name for f in train])

@@ -49,7 +49,7 @@ GT_VOXEL = 0.02
 CAMERA_RADII = (2.1, 1.6)
 
 # Independent random streams, so that changing one stage leaves the others' draws alone.
-_SCENE, _CAMERA, _AGNOSTIC, _SEMANTIC, _DEPTH, _PARTS, _FATES, _POSE, _EXPOSURE = range(9)
+_SCENE, _CAMERA, _AGNOSTIC, _SEMANTIC, _DEPTH, _PARTS, _FATES, _POSE, _EXPOSURE, _BLUR = range(10)
 
 
 @dataclass(frozen=True)
@@ -81,6 +81,9 @@ class SynthConfig:
             frame's colour times a per-channel gain that drifts smoothly along the trajectory,
             the log exposure gain with this standard deviation over the frames (0.2: about
             +-20 %); colour only. 0 = constant exposure.
+        motion_blur_share: the share of views that are blurred (drawn at random, seeded);
+            the others stay sharp, as in a handheld capture where only the fast turns smear
+            the image. 1 = every view.
         error_model: a generator of :data:`~dcseg.synth.errors.ERROR_MODELS` makes the masks
             instead of the noise level (which then sets the depth noise only); "" = the
             level's own masks (``realistic`` for the ``realistic`` level).
@@ -96,6 +99,7 @@ class SynthConfig:
     pose_error_deg: float = 0.0
     pose_error_m: float = 0.0
     motion_blur_px: float = 0.0
+    motion_blur_share: float = 1.0
     error_model: str = ""
     exposure_spread: float = 0.0
 
@@ -123,6 +127,10 @@ class SynthConfig:
         if not 0.0 <= self.exposure_spread <= MAX_SPREAD:
             raise ValueError(
                 f"exposure_spread must be between 0 and {MAX_SPREAD:g}, got {self.exposure_spread}"
+            )
+        if not 0.0 <= self.motion_blur_share <= 1.0:
+            raise ValueError(
+                f"motion_blur_share must be between 0 and 1, got {self.motion_blur_share}"
             )
         if self.error_model and self.error_model not in ERROR_MODELS:
             raise ValueError(
@@ -309,13 +317,15 @@ def _simulate_frames(
     extras: dict[str, list[Any]] = {
         key: [] for key in ("agnostic", "semantic_map", "depth", "semantic", "instance", "scores")
     }
+    smeared = blurred_views(cfg)
     for i, (view, c2w, (inst_map, class_map)) in enumerate(zip(views, poses, maps, strict=True)):
         name = f"frame_{i:04d}"
         xyz = backproject(view.depth, k.matrix(), c2w)
         out = segmenter.view(cfg, i, ViewTruth(inst_map, class_map, xyz, view.depth))
         depth = noisy_depth(view.depth, level, _rng(cfg, _DEPTH, i))
         pose = perturbed_pose(c2w, cfg.pose_error_deg, cfg.pose_error_m, _rng(cfg, _POSE, i))
-        rgb = exposed(_blurred(cfg, view, k.matrix(), poses, i), gains[i])
+        rgb = _blurred(cfg, view, k.matrix(), poses, i) if i in smeared else view.rgb
+        rgb = exposed(rgb, gains[i])
         frames.append(Frame(name, rgb, depth, k, pose))
         extras["agnostic"].append(masks_from_dense(name, out.masks))
         extras["scores"].append(out.scores)
@@ -383,6 +393,18 @@ def instance_extents(
         lo, hi = np.percentile(points, [5, 95], axis=0)
         out[inst_id] = float(np.linalg.norm(hi - lo))
     return out
+
+
+def blurred_views(cfg: SynthConfig) -> frozenset[int]:
+    """Indices of the views whose colour is blurred: all with ``motion_blur_share`` 1, else
+    that share of them (rounded) drawn without replacement; none without blur."""
+    if cfg.motion_blur_px == 0.0:
+        return frozenset()
+    if cfg.motion_blur_share >= 1.0:
+        return frozenset(range(cfg.frames))
+    count = round(cfg.motion_blur_share * cfg.frames)
+    picked = _rng(cfg, _BLUR).choice(cfg.frames, size=count, replace=False)
+    return frozenset(int(i) for i in picked)
 
 
 def _blurred(

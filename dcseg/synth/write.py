@@ -13,7 +13,7 @@ import numpy as np
 
 from dcseg.synth.catalogue import RARE_CLASSES
 from dcseg.synth.failures import LOOKALIKES
-from dcseg.synth.generate import SynthScene
+from dcseg.synth.generate import SynthScene, blurred_views
 from dcseg.synth.semantic import CONFUSIONS
 
 logger = logging.getLogger(__name__)
@@ -107,6 +107,8 @@ def scene_summary(scene: SynthScene, timings: dict[str, float]) -> dict[str, Any
         "pose_error": {"deg": cfg.pose_error_deg, "m": cfg.pose_error_m},
         "motion_blur_px": cfg.motion_blur_px,
         "exposure_spread": cfg.exposure_spread,
+        "motion_blur_share": cfg.motion_blur_share,
+        "blurred_views": sorted(blurred_views(cfg)),
         "instances": [inst.record() for inst in scene.instances],
         "gt_points": len(scene.ground_truth.labels),
         "timings": {k: round(v, 3) for k, v in timings.items()},

@@ -54,6 +54,8 @@ def test_metrics_are_finite(result: Reconstruction) -> None:
     assert result.metrics.surface_depth_mae == pytest.approx(view.surface_depth_mae)
     assert set(result.seconds) == {"init", "sensor", "train", "eval"}
     assert result.sensor["depth"]["flying_pixels"]["dropped"] is True
+    blur = result.sensor["motion_blur"]
+    assert blur["mode"] == "weight" and blur["frames_checked"] == 3
     g = result.gaussians
     assert len(g) > 0 and not g.means.requires_grad
     for tensor in (g.means, g.quats, g.log_scales, g.opacity_logits, g.sh):

@@ -90,3 +90,17 @@ def test_a_blurred_scene_changes_colour_only() -> None:
     for s_map, b_map in zip(sharp.semantic, blurred.semantic, strict=True):
         np.testing.assert_array_equal(s_map.classes, b_map.classes)
     np.testing.assert_array_equal(sharp.ground_truth.points, blurred.ground_truth.points)
+
+
+def test_a_share_of_the_views_is_blurred_the_rest_stay_sharp() -> None:
+    from dcseg.synth.generate import blurred_views
+
+    cfg = SynthConfig(frames=40, motion_blur_px=10.0, motion_blur_share=0.25)
+    picked = blurred_views(cfg)
+    assert len(picked) == 10 and picked <= set(range(40))
+    assert blurred_views(cfg) == picked  # seeded
+    assert blurred_views(replace(cfg, seed=1)) != picked
+    assert blurred_views(replace(cfg, motion_blur_share=1.0)) == frozenset(range(40))
+    assert blurred_views(replace(cfg, motion_blur_px=0.0)) == frozenset()
+    with pytest.raises(ValueError, match="motion_blur_share must be between 0 and 1"):
+        SynthConfig(motion_blur_share=1.5)

@@ -63,7 +63,7 @@ def test_reconstruct_writes_ply_and_report(
     sensor = report["sensor"]  # what was detected and applied
     assert sensor["depth"]["noise"]["a_at_1m"] == report["depth_noise_at_1m"]
     assert 0.0 <= sensor["depth"]["missing_fraction"] <= 1.0
-    assert set(sensor) == {"frames_measured", "depth", "exposure", "poses"}
+    assert set(sensor) == {"frames_measured", "depth", "exposure", "poses", "motion_blur"}
     assert "geometry" not in report  # no ground truth beside the capture
     assert report["backend"] == "cpu"
     assert report["peak_memory_mb"] > 0 and "torch" in report["versions"]

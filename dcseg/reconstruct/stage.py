@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -146,12 +147,7 @@ def fit_gaussians(
         fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth, colours=colours
     )
     seconds["eval"] = time.perf_counter() - start
-    log.info(
-        "held-out PSNR %.2f dB (colour-compensated %.2f dB, under the neighbours' exposure "
-        "%.2f dB), depth MAE %.4f m (surface depth %.4f m)",
-        metrics.psnr, metrics.compensated_psnr, metrics.neighbour_psnr, metrics.depth_mae,
-        metrics.surface_depth_mae,
-    )  # fmt: skip
+    log.info("held-out %s", held_out_line(metrics))
     return Reconstruction(
         gaussians=fitted.gaussians,
         metrics=metrics,
@@ -192,6 +188,21 @@ def _detect_exposure(
         sensor["exposure"].update(report)
         exposure.log_detection(report)
     return on
+
+
+def held_out_line(metrics: Metrics) -> str:
+    """The held-out scores for the log; a score that was not measured (no fitted exposure,
+    no held-out depth: NaN) is named as such rather than printed as ``nan``."""
+    parts = [f"PSNR {metrics.psnr:.2f} dB", f"colour-compensated {metrics.compensated_psnr:.2f} dB"]
+    if math.isfinite(metrics.neighbour_psnr):
+        parts.append(f"under the neighbours' exposure {metrics.neighbour_psnr:.2f} dB")
+    if math.isfinite(metrics.depth_mae):
+        parts.append(
+            f"depth MAE {metrics.depth_mae:.4f} m (surface depth {metrics.surface_depth_mae:.4f} m)"
+        )
+    else:
+        parts.append("no depth MAE (no held-out depth)")
+    return ", ".join(parts)
 
 
 def _log_change(

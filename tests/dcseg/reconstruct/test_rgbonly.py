@@ -123,3 +123,17 @@ def test_sparse_points_read_back_as_written(tmp_path: Path) -> None:
     np.testing.assert_array_equal(capture.sparse.xyz, points.xyz)
     np.testing.assert_array_equal(capture.sparse.rgb, points.rgb)
     assert capture.sparse.track.tolist() == [2] * 30
+
+
+def test_the_log_names_scores_that_were_not_measured() -> None:
+    """An RGB-only run has no held-out depth and, without exposure fitting, no neighbours'
+    exposure: the log says so instead of printing nan."""
+    from dcseg.reconstruct.evaluate import Metrics
+    from dcseg.reconstruct.stage import held_out_line
+
+    nan = float("nan")
+    line = held_out_line(Metrics((), 24.5, nan, nan, compensated_psnr=25.0))
+    assert "nan" not in line and "no depth MAE (no held-out depth)" in line
+    assert line.startswith("PSNR 24.50 dB, colour-compensated 25.00 dB")
+    measured = held_out_line(Metrics((), 24.5, 0.012, 0.011, 25.0, 24.8))
+    assert "neighbours' exposure 24.80 dB" in measured and "depth MAE 0.0120 m" in measured

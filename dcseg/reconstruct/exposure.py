@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from torch import Tensor
 
 from dcseg.gaussians import SH_C0, Gaussians
+from dcseg.reconstruct.stepping import AdamStepping
 from dcseg.types import Frame
 
 log = logging.getLogger(__name__)
@@ -130,7 +131,7 @@ def decide(mode: str, measured: dict[str, Any]) -> bool:
 
 
 @dataclass
-class ColourCorrections:
+class ColourCorrections(AdamStepping):
     """One learnable ``[6]`` transform per view (log gain and bias of R, G, B) and its Adam.
 
     Attributes:
@@ -158,14 +159,6 @@ class ColourCorrections:
         """``reg * (|g|^2 + BIAS_WEIGHT |b|^2)`` of view ``index``: the pull towards identity."""
         p = self.params[index]
         return self.reg * ((p[:3] * p[:3]).sum() + BIAS_WEIGHT * (p[3:] * p[3:]).sum())
-
-    def set_lr(self, lr: float) -> None:
-        for group in self.optimizer.param_groups:
-            group["lr"] = lr
-
-    def step(self) -> None:
-        self.optimizer.step()
-        self.optimizer.zero_grad(set_to_none=True)
 
 
 def transformed(image: Tensor, p: Tensor) -> Tensor:

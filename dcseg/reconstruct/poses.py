@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from torch import Tensor
 
 from dcseg.gaussians import Gaussians
+from dcseg.reconstruct.stepping import AdamStepping
 from dcseg.render import Camera
 from dcseg.types import Capture
 
@@ -117,7 +118,7 @@ def corrected_camera(camera: Camera, delta: Tensor) -> Camera:
 
 
 @dataclass
-class PoseCorrections:
+class PoseCorrections(AdamStepping):
     """One learnable correction per view and the Adam that fits them.
 
     Attributes:
@@ -132,14 +133,6 @@ class PoseCorrections:
     def zeros(cls, n_views: int, lr: float, device: torch.device | str) -> PoseCorrections:
         deltas = [torch.zeros(6, device=device, requires_grad=True) for _ in range(n_views)]
         return cls(deltas, torch.optim.Adam(deltas, lr=lr, eps=1e-15))
-
-    def set_lr(self, lr: float) -> None:
-        for group in self.optimizer.param_groups:
-            group["lr"] = lr
-
-    def step(self) -> None:
-        self.optimizer.step()
-        self.optimizer.zero_grad(set_to_none=True)
 
 
 def pose_change(before: NDArray[np.float64], after: NDArray[np.float64]) -> tuple[float, float]:

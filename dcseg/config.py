@@ -51,6 +51,10 @@ class CaptureOptions:
         sync_tolerance_ms: for layouts that pair colour, depth and poses by timestamp (TUM
             RGB-D, ARKitScenes), the largest time difference accepted, in milliseconds. None =
             the layout's own default (TUM 20 ms, as its ``associate.py``; ARKitScenes 5 ms).
+        pose_scale: metres per unit of the capture's poses: camera positions (and COLMAP's
+            sparse points) are multiplied by it when listed, before anything else reads them;
+            depth maps stay in metres. For a COLMAP model made from images alone (its units
+            are arbitrary) whose size the user knows. None = the poses are in metres.
     """
 
     stride: int = option(1, bounds=(1, 10_000), help="keep every stride-th frame", flag="--stride")
@@ -84,6 +88,14 @@ class CaptureOptions:
         "poses (default: TUM 20, ARKitScenes 5)",
         flag="--sync-tolerance-ms",
     )
+    pose_scale: float | None = option(
+        None,
+        bounds=(0, 1e6),
+        above=True,
+        help="metres per unit of the capture's poses (and COLMAP sparse points), e.g. for a "
+        "COLMAP model from images alone; depth stays in metres (default: poses in metres)",
+        flag="--pose-scale",
+    )
 
     def __post_init__(self) -> None:
         if self.stride < 1:
@@ -98,6 +110,8 @@ class CaptureOptions:
             raise ValueError(f"min_confidence must be 0, 1 or 2, got {self.min_confidence}")
         if self.sync_tolerance_ms is not None and not self.sync_tolerance_ms > 0:
             raise ValueError(f"sync_tolerance_ms must be > 0, got {self.sync_tolerance_ms}")
+        if self.pose_scale is not None and not 0 < self.pose_scale <= 1e6:
+            raise ValueError(f"pose_scale must be in (0, 1e6], got {self.pose_scale}")
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,7 @@ from dcseg.io.captures.common import (
     load_capture,
     read_spec_colour,
     rel,
+    scale_poses,
     select,
 )
 from dcseg.io.captures.plan import CaptureMeta, CapturePlan, plan_capture
@@ -154,7 +155,8 @@ class CaptureListing:
 def _list_folder(folder: Path, options: CaptureOptions, shown: str) -> CaptureListing:
     layout = _detect(folder, shown)
     logger.debug("%s: detected the %s layout", shown, layout)
-    return CaptureListing(folder, shown, layout, LAYOUTS[layout][1](folder, options))
+    listing = scale_poses(LAYOUTS[layout][1](folder, options), options.pose_scale)
+    return CaptureListing(folder, shown, layout, listing)
 
 
 @contextmanager
@@ -195,9 +197,8 @@ def _listed(path: Path, options: CaptureOptions) -> Iterator[CaptureListing]:
     if path.suffix.lower() == sens.SENS_SUFFIX:
         with tempfile.TemporaryDirectory(prefix="dcseg-capture-") as tmp:
             folder = sens.extract(path, Path(tmp))
-            yield CaptureListing(
-                folder, str(path), "scannet-sens", scannet.list_frames(folder, options)
-            )
+            listing = scale_poses(scannet.list_frames(folder, options), options.pose_scale)
+            yield CaptureListing(folder, str(path), "scannet-sens", listing)
         return
     if not (is_archive(path) or path.suffix.lower() == record3d.R3D_SUFFIX):
         raise InputError.single(

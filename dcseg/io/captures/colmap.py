@@ -348,7 +348,7 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     for image in sorted(images, key=lambda im: numeric_sort_key(im.name)):
         _add_image(root, image, intrinsics, listing, rgb_only)
     if listing.specs and not listing.problems and not rgb_only:
-        _check_scale(root, folder, images, listing)
+        _check_scale(root, folder, images, listing, options.pose_scale)
     return listing
 
 
@@ -364,13 +364,16 @@ def _add_sparse(root: Path, folder: Path, listing: Listing) -> None:
         listing.problems.append(Problem(listing.sparse.source, "holds no points: " + _NO_POINTS))
 
 
-def _check_scale(root: Path, folder: Path, images: list[_Image], listing: Listing) -> None:
+def _check_scale(
+    root: Path, folder: Path, images: list[_Image], listing: Listing, pose_scale: float | None
+) -> None:
     """Refuse depth maps whose scale is not the model's (:mod:`.colmap_scale`)."""
     by_name = {posixpath.splitext(image.name)[0]: image for image in images}
     observed = [Observed(spec, by_name[spec.name].points) for spec in listing.specs]
     images_path = _model_file(folder, "images")
     assert images_path is not None
-    problem = scale_problem(root, images_path, _model_file(folder, "points3D"), observed)
+    points = _model_file(folder, "points3D")
+    problem = scale_problem(root, images_path, points, observed, pose_scale)
     if problem is not None:
         listing.problems.append(problem)
 

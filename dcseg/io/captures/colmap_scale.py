@@ -54,9 +54,14 @@ class Observed:
 
 
 def scale_problem(
-    root: Path, images: Path, points3d: Path | None, frames: Sequence[Observed]
+    root: Path,
+    images: Path,
+    points3d: Path | None,
+    frames: Sequence[Observed],
+    pose_scale: float | None = None,
 ) -> Problem | None:
-    """The problem of a model whose scale disagrees with its depth maps, or None.
+    """The problem of a model whose scale (times ``pose_scale``, the user's metres per model
+    unit, when given) disagrees with its depth maps, or None.
 
     Raises:
         InputError: a model file or a sampled depth map cannot be read.
@@ -79,14 +84,16 @@ def scale_problem(
     if ratios.size < MIN_POINTS:
         logger.debug("COLMAP scale check skipped: %d usable sparse points", ratios.size)
         return None
-    median = float(np.median(ratios))
+    median = float(np.median(ratios)) / (pose_scale or 1.0)
     if SCALE_RANGE[0] <= median <= SCALE_RANGE[1]:
         return None
+    model = "model depth" if pose_scale is None else f"(model depth x pose_scale {pose_scale:g})"
     return Problem(
         rel(points3d, root),
-        f"the model and the depth maps disagree in scale: depth map / model depth at "
+        f"the model and the depth maps disagree in scale: depth map / {model} at "
         f"{ratios.size} sparse points of {len(chosen)} frames has median {median:.3g} (expected "
-        "1): scale the model to metres (e.g. colmap model_aligner) or give metric depth",
+        "1): scale the model to metres (e.g. colmap model_aligner or capture.pose_scale) or "
+        "give metric depth",
     )
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
 
@@ -126,6 +126,22 @@ class Listing:
         """Frame ``name`` cannot be listed, for ``problems``: both reported together."""
         self.problems.extend(problems)
         self.unlisted.append(name)
+
+
+def scale_poses(listing: Listing, pose_scale: float | None) -> Listing:
+    """``listing`` with its camera positions and sparse points multiplied by ``pose_scale``
+    (``CaptureOptions.pose_scale``, metres per unit of the poses); itself when None."""
+    if pose_scale is None:
+        return listing
+    specs = []
+    for spec in listing.specs:
+        c2w = np.array(spec.c2w, dtype=np.float64)
+        c2w[:3, 3] *= pose_scale
+        specs.append(replace(spec, c2w=c2w))
+    sparse = listing.sparse
+    if sparse is not None:
+        sparse = replace(sparse, xyz=sparse.xyz * pose_scale)
+    return replace(listing, specs=specs, sparse=sparse)
 
 
 def rel(path: Path, root: Path) -> str:

@@ -11,11 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.io.captures import read_capture
 from dcseg.io.captures.colmap_scale import MIN_POINTS
 from tests.dcseg.io.layouts import RgbdScene, capture_scene, make_scene, synth_capture
-from tests.dcseg.io.test_captures_colmap import world_to_camera, write_colmap
+from tests.dcseg.io.test_captures_colmap import remove_depth, world_to_camera, write_colmap
 
 Observation = tuple[float, float, int]
 
@@ -126,3 +127,35 @@ def test_synth_scene_with_sparse_points(tmp_path: Path) -> None:
         np.testing.assert_allclose(frame.depth, before.depth, atol=1e-6)
     with pytest.raises(InputError, match=r"disagree in scale: .* has median 0\.5 "):
         read_capture(write_model(scene, tmp_path / "sfm", 2.0, False))
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_pose_scale_makes_a_scaled_model_metric(tmp_path: Path, binary: bool) -> None:
+    """A model 2.5x too large, read with ``pose_scale`` 0.4: the check passes and the poses
+    come back in metres; a wrong ``pose_scale`` is refused naming it."""
+    scene = make_scene(n=4)
+    root = write_model(scene, tmp_path, 2.5, binary)
+    capture = read_capture(root, CaptureOptions(pose_scale=0.4))
+    for frame, c2w in zip(capture.frames, scene.c2w, strict=True):
+        np.testing.assert_allclose(frame.c2w, c2w, atol=1e-9)
+    with pytest.raises(InputError) as info:
+        read_capture(root, CaptureOptions(pose_scale=2.0))
+    assert "depth map / (model depth x pose_scale 2) at " in str(info.value)
+    assert "has median 0.2 (expected 1)" in str(info.value)
+
+
+def test_pose_scale_scales_rgb_only_poses_and_sparse_points(tmp_path: Path) -> None:
+    root = remove_depth(write_model(make_scene(n=3), tmp_path, 1.0, True))
+    plain = read_capture(root)
+    scaled = read_capture(root, CaptureOptions(pose_scale=0.25))
+    assert plain.sparse is not None and scaled.sparse is not None
+    np.testing.assert_allclose(scaled.sparse.xyz, plain.sparse.xyz * 0.25)
+    for a, b in zip(scaled.frames, plain.frames, strict=True):
+        np.testing.assert_allclose(a.c2w[:3, 3], b.c2w[:3, 3] * 0.25)
+        np.testing.assert_array_equal(a.c2w[:3, :3], b.c2w[:3, :3])
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, 2e6])
+def test_pose_scale_out_of_range_is_refused(value: float) -> None:
+    with pytest.raises(ValueError, match="pose_scale"):
+        CaptureOptions(pose_scale=value)

@@ -185,8 +185,9 @@ def segment_scene(
             evidence, clustering, assignment, (features, means, radius, stuff), a
         )
     semantic_ids = label_map(clustering.labels, assignment.labels)
+    footprints = as_numpy(g.log_scales.max(dim=1).values.exp(), np.float64)
     instances, semantic_ids = build_objects(
-        means, radius, evidence, clustering, assignment, semantic_ids, a, stuff
+        means, radius, evidence, clustering, assignment, semantic_ids, a, stuff, footprints
     )
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
     if a.label_maps == "gaussians":

@@ -11,6 +11,12 @@ class that maximises
 where its own evidence is its blending weight summed per class over the class-aware maps of all
 views (:func:`class_evidence`). A few rounds let labels reach one neighbourhood further each
 time; Gaussians with no labelled neighbour stay unlabelled (floaters are not labelled).
+
+Given each Gaussian's footprint (its largest scale), a labelled Gaussian is also a neighbour
+when the two footprints overlap (centres closer than the sum of the footprints), however far
+apart their centres are against the contact radius: flat discs on walls and floors (surface
+priors) are few and wide, several contact radii apart, and a disc dropped as a 3D outlier sat
+unlabelled though it overlapped its labelled neighbours (:func:`reachable`).
 """
 
 from __future__ import annotations
@@ -39,6 +45,37 @@ def neighbour_shares(
     return out
 
 
+def reachable(
+    known: NDArray[np.float64],
+    todo: NDArray[np.float64],
+    k: int,
+    radius: float,
+    footprints: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+) -> NDArray[np.int64]:
+    """``[M, k]`` indices into ``known`` of the ``k`` nearest known points of each ``todo``
+    point within reach (missing = ``len(known)``): within ``radius``, or with footprints
+    ``(known_fp, todo_fp)`` also closer than the sum of the two footprints.
+
+    Example:
+        >>> known, todo = np.zeros((1, 3)), np.array([[1.0, 0, 0]])
+        >>> reachable(known, todo, 1, 0.5).tolist()
+        [[1]]
+        >>> reachable(known, todo, 1, 0.5, (np.array([0.6]), np.array([0.6]))).tolist()
+        [[0]]
+    """
+    if footprints is None:
+        _, idx = cKDTree(known).query(todo, k=k, distance_upper_bound=radius)
+        return np.asarray(idx, dtype=np.int64).reshape(len(todo), k)
+    known_fp, todo_fp = footprints
+    bound = max(radius, float(known_fp.max(initial=0.0) + todo_fp.max(initial=0.0)))
+    dist, idx = cKDTree(known).query(todo, k=k, distance_upper_bound=bound)
+    dist = np.asarray(dist, dtype=np.float64).reshape(len(todo), k)
+    idx = np.asarray(idx, dtype=np.int64).reshape(len(todo), k)
+    padded = np.append(known_fp, np.inf)
+    reach = np.maximum(radius, todo_fp[:, None] + padded[np.minimum(idx, len(known))])
+    return np.where(dist <= reach, idx, len(known))
+
+
 def complete_labels(
     means: NDArray[np.floating[Any]],
     labels: NDArray[np.integer[Any]],
@@ -48,6 +85,7 @@ def complete_labels(
     neighbours: int,
     rounds: int,
     evidence_weight: float,
+    footprints: NDArray[np.floating[Any]] | None = None,
 ) -> NDArray[np.int64]:
     """Give unlabelled Gaussians next to labelled ones a class (see the module docstring).
 
@@ -59,6 +97,8 @@ def complete_labels(
         neighbours: nearest labelled Gaussians looked at per unlabelled one.
         rounds: completion passes (0 = none).
         evidence_weight: weight of the own evidence share (0 = neighbours only).
+        footprints: ``[N]`` each Gaussian's largest scale (world units): overlapping
+            footprints also reach (None = the radius only).
 
     Returns:
         ``[N]`` int64 classes; labelled Gaussians keep theirs.
@@ -78,6 +118,9 @@ def complete_labels(
         )
     if radius <= 0:
         raise ValueError(f"radius must be > 0, got {radius}")
+    fp = None if footprints is None else np.asarray(footprints, dtype=np.float64).reshape(-1)
+    if fp is not None and fp.shape != (len(xyz),):
+        raise ValueError(f"footprints must be [{len(xyz)}], got {fp.shape}")
     total = ev.sum(axis=1, keepdims=True)
     own = np.divide(ev, total, out=np.zeros_like(ev), where=total > 0)
     for _ in range(rounds):
@@ -85,8 +128,8 @@ def complete_labels(
         if len(known) == 0 or len(todo) == 0:
             break
         k = min(neighbours, len(known))
-        _, idx = cKDTree(xyz[known]).query(xyz[todo], k=k, distance_upper_bound=radius)
-        idx = np.asarray(idx, dtype=np.int64).reshape(len(todo), k)
+        pair = None if fp is None else (fp[known], fp[todo])
+        idx = reachable(xyz[known], xyz[todo], k, radius, pair)
         near = neighbour_shares(out[known], idx, ev.shape[1])
         reached = near.sum(axis=1) > 0
         if not reached.any():

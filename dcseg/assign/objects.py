@@ -44,17 +44,19 @@ def build_objects(
     semantic_ids: NDArray[np.int64],
     cfg: AssignConfig,
     stuff: Sequence[int],
+    footprints: NDArray[np.float64] | None = None,
 ) -> tuple[Instances, NDArray[np.int64]]:
     """Adopt unlabelled clusters, complete labels, build object instances, and (with
     ``cfg.follow_evidence_ratio``) let Gaussians follow their own evidence.
 
     ``means`` are the Gaussians' centres and ``radius`` the contact radius
     (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.contact_factor``); ``stuff``
-    the vocabulary's stuff classes (:func:`stuff_ids`). Without evidence, a contact radius,
-    or both ``cfg.objects`` and ``cfg.complete`` off, every cluster is one instance and
-    ``semantic_ids`` stay as they are. Without classes (a class-agnostic run) and with
-    ``cfg.objects``, touching clusters whose features agree merge
-    (:mod:`dcseg.assign.agnostic`).
+    the vocabulary's stuff classes (:func:`stuff_ids`); ``footprints`` each Gaussian's largest
+    scale, across which label completion also reaches (:mod:`dcseg.assign.completion`).
+    Without evidence, a contact radius, or both ``cfg.objects`` and ``cfg.complete`` off,
+    every cluster is one instance and ``semantic_ids`` stay as they are. Without classes (a
+    class-agnostic run) and with ``cfg.objects``, touching clusters whose features agree
+    merge (:mod:`dcseg.assign.agnostic`).
 
     Returns:
         The instances and the ``[N]`` final class per Gaussian (-1 = none).
@@ -70,6 +72,7 @@ def build_objects(
         ids = complete_labels(
             means, ids, evidence, radius=radius, neighbours=cfg.neighbours,
             rounds=cfg.completion_rounds, evidence_weight=cfg.evidence_weight,
+            footprints=footprints,
         )  # fmt: skip
     if not cfg.objects:
         instances = per_cluster_instances(labels, assignment)

@@ -312,9 +312,10 @@ distance to the true surfaces falls from 19.8 to 1.4 mm, held-out depth MAE from
 7.7 mm, held-out PSNR 26.8 -> 26.9 dB. Without ``planar_depth`` the discs sit as close
 (2.0 mm) but render 16.6 mm depth error: each splat's centre depth over its whole footprint
 misses slanted surfaces (the floor at a grazing angle) more for thin wide discs than for blobs.
-Cost: 1.25x the reconstruction's wall time (interleaved A/B, benchmarks/README "Surfaces"); on
-held-out segmentation layouts they help under heavy noise and lower instance F1 on clean and
-realistic masks, hence off by default."""
+Cost: 1.25x the reconstruction's wall time (interleaved A/B, benchmarks/README "Surfaces"). Off
+by default: on held-out segmentation layouts the 3D labels are 1.3-5.3 mIoU lower at every
+noise level; small objects keep 2-2.5x fewer Gaussians and lose most (benchmarks/README
+"Surface priors and segmentation")."""
 
 REFINE_POSES: dict[str, float | int] = {"pose_lr": 1e-3, "pose_from": 500}
 """The overrides of ``--refine-poses`` (off by default): from step 500 a pose correction per

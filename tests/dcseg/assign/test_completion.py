@@ -86,3 +86,27 @@ def test_bad_shapes_are_named() -> None:
         complete(plane(2), np.zeros(4, dtype=np.int64), np.zeros((3, 3)))
     with pytest.raises(ValueError, match="radius"):
         complete(plane(2), np.zeros(4, dtype=np.int64), np.zeros((4, 3)), radius=0.0)
+
+
+def test_wide_discs_reach_across_their_overlapping_footprints() -> None:
+    """A wall of few wide discs, centres 5 contact radii apart: an unlabelled disc whose
+    footprint overlaps its labelled neighbours' takes their class; without footprints, or
+    when the footprints do not overlap, it stays unlabelled."""
+    step = 5 * 3 * SPACING
+    means = np.array([[0, 0, 0], [step, 0, 0], [2 * step, 0, 0]], dtype=np.float64)
+    labels = np.array([WALL, -1, WALL])
+    evidence = np.zeros((3, 3))
+    wide = np.full(3, 0.6 * step)
+    narrow = np.full(3, 0.4 * step)
+
+    def run(footprints: NDArray[np.float64] | None) -> NDArray[np.int64]:
+        return complete_labels(
+            means, labels, evidence, radius=3 * SPACING, neighbours=8, rounds=1,
+            evidence_weight=1.0, footprints=footprints,
+        )  # fmt: skip
+
+    assert run(wide).tolist() == [WALL, WALL, WALL]
+    assert run(narrow)[1] == -1, "footprints that do not overlap do not reach"
+    assert run(None)[1] == -1, "without footprints: the radius only"
+    with pytest.raises(ValueError, match="footprints"):
+        run(wide[:2])

@@ -165,6 +165,7 @@ def segment_scene(
     )  # fmt: skip
     on_progress("assign", 1.0, f"{int((assignment.labels >= 0).sum())} of {k} clusters labelled")
     _report_consistency(assignment, on_progress)
+    voted = assignment  # the vote's own record; the steps below rebuild the assignment
     evidence = None if total is None else total.evidence
     agreement = float("nan")
     means = as_numpy(g.means, np.float64)
@@ -204,8 +205,9 @@ def segment_scene(
             name: label_map(ids, assignment.labels).astype(np.int32) for name, ids in maps.items()
         }
     return Segmentation(
-        clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted
-    )
+        clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted,
+        voted.unanimous, voted.confusions,
+    )  # fmt: skip
 
 
 def _report_consistency(assignment: Assignment, on_progress: Progress) -> None:

@@ -61,7 +61,8 @@ def test_untested_clusters_do_not_make_a_class_real() -> None:
 
 def test_lookalike_in_most_views_is_undone_by_the_vote() -> None:
     cluster_maps, class_maps = lookalike_views(24, wrong_every=5)
-    plain = assign_labels(cluster_maps, class_maps, 3, 3, AssignConfig(min_area=0))
+    off = AssignConfig(min_area=0, confusion_min_share=0.0)
+    plain = assign_labels(cluster_maps, class_maps, 3, 3, off)
     assert plain.labels.tolist() == [0, 2, 1]  # the majority elects the look-alike
     cfg = AssignConfig(min_area=0, confusion_min_share=0.1)
     fixed = assign_labels(cluster_maps, class_maps, 3, 3, cfg)

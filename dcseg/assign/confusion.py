@@ -132,6 +132,8 @@ def undo_confusions(
     if not 0.0 < min_share <= 1.0 or min_views < 1:
         raise ValueError(f"need min_share in (0, 1] and min_views >= 1: {min_share}, {min_views}")
     out = np.asarray(labels, dtype=np.int64).copy()
+    if np.shape(counts)[1] == 0:  # no vocabulary (a class-agnostic run): nothing voted
+        return out
     companion = companions(out, counts, votes, min_share, min_views, min_iou_ratio)
     dependent = dependent_classes(out, companion, counts, math.ceil(min_views / min_share))
     flip = (out >= 0) & (companion >= 0) & dependent[np.maximum(out, 0)]

@@ -130,7 +130,7 @@ def assign_labels(
     labels, scores = decide(votes)
     counts = view_counts(views, n_clusters, n_classes)
     unanimous = unanimous_share(counts, labels)
-    if cfg.confusion_min_share > 0:
+    if cfg.confusion_min_share > 0 and n_classes > 0:
         voted = labels
         labels = undo_confusions(
             voted, counts, votes,

@@ -78,6 +78,12 @@ def test_error_in_every_view_stays() -> None:
     assert assign_labels(cluster_maps, class_maps, 3, 3, cfg).labels.tolist() == [0, 2, 1]
 
 
+def test_no_vocabulary_changes_nothing() -> None:
+    counts = np.zeros((3, 0), dtype=np.int64)
+    labels = np.full(3, -1)
+    assert undo_confusions(labels, counts, counts * 1.0, 0.15, 2, 0.5).tolist() == [-1, -1, -1]
+
+
 def test_unanimous_share() -> None:
     counts = np.array([[5, 0], [4, 1], [0, 0]])
     assert unanimous_share(counts, np.array([0, 0, -1])) == 0.5

@@ -30,10 +30,11 @@ def _read(path: Path) -> NDArray[Any]:
     return np.asarray(image)
 
 
-def object_views(scene: Path, min_pixels: int) -> dict[int, Counter[int]]:
-    """Per object id, how many views mostly give it each class (-1 = unlabelled)."""
+def object_views(scene: Path, min_pixels: int, structure: bool = False) -> dict[int, Counter[int]]:
+    """Per object id (and wall / floor id with ``structure``), how many views mostly give it
+    each class (-1 = unlabelled)."""
     made = json.loads((scene / "scene.json").read_text(encoding="utf-8"))
-    objects = {i["id"] for i in made["instances"] if i["kind"] != "structure"}
+    objects = {i["id"] for i in made["instances"] if structure or i["kind"] != "structure"}
     out: dict[int, Counter[int]] = {i: Counter() for i in objects}
     for path in sorted((scene / "gt" / "instance").glob("*.png")):
         ids = _read(path).astype(np.int64)
@@ -59,7 +60,15 @@ def scene_stats(scene: Path, min_pixels: int) -> dict[str, Any]:
             continue
         right = votes[truth[inst_id]] / seen
         top = votes.most_common(1)[0][0]
-        rows.append({"id": inst_id, "views": seen, "right_share": round(right, 3), "top": top})
+        rows.append(
+            {
+                "id": inst_id,
+                "views": seen,
+                "right_share": round(right, 3),
+                "top": top,
+                "labelled_top": labelled_top(votes),
+            }
+        )
     n = max(len(rows), 1)
     return {
         "scene": str(scene),
@@ -68,7 +77,46 @@ def scene_stats(scene: Path, min_pixels: int) -> dict[str, Any]:
         "wrong_in_every_view": round(sum(r["right_share"] == 0 for r in rows) / n, 3),
         "majority_wrong": round(sum(r["top"] != truth[r["id"]] for r in rows) / n, 3),
         "right_in_every_view": round(sum(r["right_share"] == 1 for r in rows) / n, 3),
+        "labelled_majority_wrong": round(
+            sum(r["labelled_top"] != truth[r["id"]] for r in rows) / n, 3
+        ),
+        **vote_bounds(scene, min_pixels),
         "per_object": rows,
+    }
+
+
+def labelled_top(votes: Counter[int]) -> int:
+    """The class most views give an object, unlabelled views left out (-1 = none labels it)."""
+    named = [(n, c) for c, n in votes.items() if c >= 0]
+    return max(named)[1] if named else -1
+
+
+def vote_bounds(scene: Path, min_pixels: int) -> dict[str, float]:
+    """mIoU of the scene's ground-truth points (3D protocol's classes) under two per-object
+    oracles with perfect geometry (every surface and object, walls and floor included, is one
+    labelled unit): ``majority`` = each takes the class most of its labelled views give it
+    (what any view-counting vote reaches at best), ``ceiling`` = each takes its true class
+    when at least one view mostly gives it that class, else the majority (what any vote over
+    the class maps reaches at best: an object no view names is lost whatever the weights)."""
+    from dcseg.evaluate import EvaluateConfig, evaluate_scenes
+    from dcseg.io.ground_truth import read_ground_truth
+
+    made = json.loads((scene / "scene.json").read_text(encoding="utf-8"))
+    names = made["vocabulary"]
+    truth = {i["id"]: names.index(i["class"]) for i in made["instances"]}
+    gt = read_ground_truth(scene / "gt" / "points.ply", len(names))
+    assert gt.instances is not None
+    majority = np.full(len(gt.labels), -1, dtype=np.int64)
+    ceiling = majority.copy()
+    for inst_id, votes in object_views(scene, min_pixels, structure=True).items():
+        points = gt.instances == inst_id
+        top = labelled_top(votes)
+        majority[points] = top
+        ceiling[points] = truth[inst_id] if votes[truth[inst_id]] else top
+    cfg = EvaluateConfig()
+    return {
+        name: round(100 * evaluate_scenes([gt.labels], [pred], names, cfg)["miou"], 2)
+        for name, pred in (("majority_miou", majority), ("ceiling_miou", ceiling))
     }
 
 
@@ -80,8 +128,11 @@ def main() -> None:
     args = p.parse_args()
     found = [scene_stats(s, args.min_pixels) for s in args.scenes]
     for s in found:
-        keys = ("error_model", "objects", "wrong_in_every_view", "majority_wrong")
-        print(s["scene"], {k: s[k] for k in (*keys, "right_in_every_view")})
+        keys = (
+            *("error_model", "objects", "wrong_in_every_view", "majority_wrong"),
+            *("labelled_majority_wrong", "right_in_every_view", "majority_miou", "ceiling_miou"),
+        )
+        print(s["scene"], {k: s[k] for k in keys})
     if args.out:
         args.out.write_text(json.dumps(found, indent=1) + "\n", encoding="utf-8")
 

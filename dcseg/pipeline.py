@@ -19,7 +19,7 @@ from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_a
 from dcseg.assign.consistency import mask_agreement
 from dcseg.assign.objects import build_objects, stuff_ids
 from dcseg.assign.refinement import drop_inconsistent, supported_votes, trusted_settings
-from dcseg.assign.stage import assign_labels
+from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.blend import BlendWeights
 from dcseg.cluster.features import as_numpy
 from dcseg.cluster.outliers import adaptive_radius
@@ -164,6 +164,8 @@ def segment_scene(
         cfg.assign,
     )  # fmt: skip
     on_progress("assign", 1.0, f"{int((assignment.labels >= 0).sum())} of {k} clusters labelled")
+    _report_consistency(assignment, on_progress)
+    voted = assignment  # the vote's own record; the steps below rebuild the assignment
     evidence = None if total is None else total.evidence
     agreement = float("nan")
     means = as_numpy(g.means, np.float64)
@@ -204,8 +206,25 @@ def segment_scene(
             name: label_map(ids, assignment.labels).astype(np.int32) for name, ids in maps.items()
         }
     return Segmentation(
-        clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted
-    )
+        clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted,
+        voted.unanimous, voted.confusions,
+    )  # fmt: skip
+
+
+def _report_consistency(assignment: Assignment, on_progress: Progress) -> None:
+    """Say how much of the labelling rests on views that all agree, and what was undone."""
+    if assignment.confusions:
+        on_progress(
+            "assign", 1.0,
+            f"{assignment.confusions} clusters voted a look-alike class took the class their "
+            "other views name (consistent confusion undone)",
+        )  # fmt: skip
+    if assignment.unanimous == assignment.unanimous:
+        on_progress(
+            "assign", 1.0,
+            f"{100 * assignment.unanimous:.0f} % of labelled clusters are named alike in every "
+            "matched view: where the segmenter is wrong about them, no vote can tell",
+        )  # fmt: skip
 
 
 def evaluate_segmentation(

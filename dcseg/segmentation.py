@@ -50,6 +50,11 @@ class Segmentation:
             (:func:`~dcseg.assign.consistency.mask_agreement`), NaN when not measured.
         evidence_trusted: whether it reached ``AssignConfig.trust_agreement``, so that the
             Gaussians' own evidence decided the consistency step and completion.
+        unanimous: share of the labelled clusters that every matched view names alike
+            (``Assignment.unanimous`` of the vote): where the segmenter is wrong about them,
+            no vote can tell. NaN when not measured.
+        confusions: clusters whose voted class was taken for a consistent confusion and
+            replaced (``AssignConfig.confusion_min_share``).
     """
 
     clustering: Clustering
@@ -60,6 +65,8 @@ class Segmentation:
     label_maps: dict[str, NDArray[np.int32]]
     mask_agreement: float = float("nan")
     evidence_trusted: bool = False
+    unanimous: float = float("nan")
+    confusions: int = 0
 
     @property
     def n_clusters(self) -> int:

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.assign.config import AssignConfig
+from dcseg.assign.confusion import unanimous_share, undo_confusions, view_counts
 from dcseg.assign.masks import component_counts, mask_iou
 from dcseg.assign.matching import Match, match_view
 from dcseg.assign.vote import decide, tally
@@ -25,12 +26,19 @@ class Assignment:
             0 when unlabelled.
         votes: ``[K, C]`` float64 IoU of every matched (cluster, class) pair summed over views.
         n_views: ``[K]`` int64 number of views in which the cluster was matched to a class.
+        unanimous: share of the labelled clusters that every matched view names alike
+            (:func:`~dcseg.assign.confusion.unanimous_share`): a segmenter error there repeats
+            in every view and no vote can undo it; NaN when not measured.
+        confusions: clusters whose voted class was taken for a consistent confusion and
+            replaced by their companion class (:mod:`dcseg.assign.confusion`).
     """
 
     labels: NDArray[np.int64]
     scores: NDArray[np.float64]
     votes: NDArray[np.float64]
     n_views: NDArray[np.int64]
+    unanimous: float = float("nan")
+    confusions: int = 0
 
     def __post_init__(self) -> None:
         for array in (self.labels, self.scores, self.votes, self.n_views):
@@ -90,7 +98,9 @@ def assign_labels(
 
     Per view: compute the ``[K, C]`` IoU of the (cleaned) cluster map with the class map and
     match (:func:`~dcseg.assign.matching.match_view`); then sum the matched IoUs per
-    (cluster, class) over views and take the best class per cluster. Views
+    (cluster, class) over views and take the best class per cluster; with
+    ``cfg.confusion_min_share > 0``, clusters voted a class that behaves like a consistent
+    confusion take their companion class (:mod:`dcseg.assign.confusion`). Views
     are processed one at a time: memory is O(H x W + K x C).
 
     Args:
@@ -115,7 +125,19 @@ def assign_labels(
     """
     if len(cluster_maps) != len(class_maps):
         raise ValueError(f"{len(cluster_maps)} cluster maps but {len(class_maps)} class maps")
-    views = _matches_per_view(cluster_maps, class_maps, n_clusters, n_classes, cfg)
+    views = list(_matches_per_view(cluster_maps, class_maps, n_clusters, n_classes, cfg))
     votes, n_views = tally(views, n_clusters, n_classes)
     labels, scores = decide(votes)
-    return Assignment(labels=labels, scores=scores, votes=votes, n_views=n_views)
+    counts = view_counts(views, n_clusters, n_classes)
+    unanimous = unanimous_share(counts, labels)
+    if cfg.confusion_min_share > 0 and n_classes > 0:
+        voted = labels
+        labels = undo_confusions(
+            voted, counts, votes,
+            cfg.confusion_min_share, cfg.confusion_min_views, cfg.confusion_min_iou_ratio,
+        )  # fmt: skip
+        won = votes[np.arange(len(labels)), np.maximum(labels, 0)]
+        total = votes.sum(axis=1)
+        scores = np.divide(won, total, out=np.zeros_like(won), where=total > 0)
+        return Assignment(labels, scores, votes, n_views, unanimous, int((labels != voted).sum()))
+    return Assignment(labels, scores, votes, n_views, unanimous)

@@ -56,6 +56,8 @@ def segmented_record(
         "segmentation": {
             "mask_agreement": round(segmentation.mask_agreement, 4),  # write_json: NaN -> null
             "evidence_trusted": segmentation.evidence_trusted,
+            "unanimous_clusters": round(segmentation.unanimous, 4),  # NaN -> null
+            "confusions_undone": segmentation.confusions,
         },
         "metrics_summary": None if metrics is None else metrics["summary"],
     }

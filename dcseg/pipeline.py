@@ -7,6 +7,7 @@ class-aware masks, cheaply, as often as wanted; ``evaluate_segmentation`` scores
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -219,7 +220,7 @@ def _report_consistency(assignment: Assignment, on_progress: Progress) -> None:
             f"{assignment.confusions} clusters voted a look-alike class took the class their "
             "other views name (consistent confusion undone)",
         )  # fmt: skip
-    if assignment.unanimous == assignment.unanimous:
+    if math.isfinite(assignment.unanimous):
         on_progress(
             "assign", 1.0,
             f"{100 * assignment.unanimous:.0f} % of labelled clusters are named alike in every "

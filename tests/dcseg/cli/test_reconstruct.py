@@ -140,7 +140,9 @@ def test_refine_poses_flag_refines_and_reports_the_poses(
     plain = tmp_path / "plain"
     assert main(["reconstruct", str(tmp_path), "--out", str(plain), "--iterations", "4"]) == 0
     report = json.loads((plain / "reconstruction.json").read_text())
-    assert report["config"]["pose_lr"] == 0.0 and report["pose_refinement"] is None
+    assert report["config"]["pose_refinement"] == "auto" and report["pose_refinement"] is None
+    assert report["sensor"]["poses"]["mode"] == "auto"
+    assert report["sensor"]["poses"]["refined"] is False
     assert not (plain / "poses.json").exists()
 
 
@@ -164,8 +166,14 @@ def test_reconstruct_refuses_a_non_empty_out_and_overwrite_drops_stale_poses(
 
 def test_run_flag_puts_pose_refinement_in_the_job_config() -> None:
     from dcseg.cli import build_parser
+    from dcseg.cli._pipeline import reconstruct_fields
 
     run = ["run", "cap", "--out", "o", "--agnostic-masks", "a", "--semantic-masks", "s"]
     run += ["--vocabulary", "v", "--refine-poses"]
     cfg = job_config(build_parser().parse_args(run)).pipeline
-    assert cfg.reconstruct.pose_lr == REFINE_POSES["pose_lr"] > 0
+    assert cfg.reconstruct.pose_refinement == REFINE_POSES["pose_refinement"] == "on"
+    argv = ["reconstruct", "cap", "--out", "o", "--pose-refinement", "off"]
+    assert reconstruct_fields(build_parser().parse_args(argv)) == {"pose_refinement": "off"}
+    argv[-1] = "sometimes"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(argv)

@@ -108,6 +108,29 @@ class ReconstructConfig:
     pose_align_lr: float = option(2e-3, bounds=(1e-06, 0.1))
     """Starting rate of those alignment steps (decaying to a tenth)."""
 
+    # --- colour/depth registration (dcseg.reconstruct.registration) ---
+    depth_registration: str = option(
+        "auto",
+        choices=("auto", "off"),
+        flag="--depth-registration",
+        help="colour/depth misregistration (separate depth and colour cameras): auto = "
+        "estimate the pixel shift between depth and colour edges and move the depth by it "
+        "when clearly non-zero",
+    )
+    """``auto``: the shift that lays the training frames' depth edges onto their colour edges
+    (:func:`dcseg.reconstruct.registration.estimate`) moves every frame's depth (trained and
+    held out) when it is non-zero and raises the edges' colour contrast by more than
+    :data:`~dcseg.reconstruct.registration.MIN_GAIN`; ``off``: not estimated. A shift given
+    in ``depth_shift_x`` / ``depth_shift_y`` is applied instead, without estimation.
+    ``reconstruction.json`` reports it (``sensor.registration``)."""
+
+    depth_shift_x: int = option(0, bounds=(-32, 32), flag="--depth-shift-x")
+    """A known colour/depth misregistration: move every depth map this many pixels right
+    (negative: left) onto its colour image; 0 with ``depth_shift_y`` 0 = none given."""
+
+    depth_shift_y: int = option(0, bounds=(-32, 32), flag="--depth-shift-y")
+    """Likewise, pixels down (negative: up)."""
+
     # --- exposure and white balance (dcseg.reconstruct.exposure) ---
     exposure: str = option("auto", choices=("auto", "on", "off"), flag="--exposure")
     """A per-channel gain and bias per training view, fitted with the Gaussians and pulled
@@ -269,6 +292,13 @@ class ReconstructConfig:
             )
         if not self.depth_filter_k > 0:
             raise ValueError(f"depth_filter_k must be > 0, got {self.depth_filter_k}")
+        if self.depth_registration not in ("auto", "off"):
+            raise ValueError(
+                f"depth_registration must be auto or off, got {self.depth_registration!r}"
+            )
+        for name in ("depth_shift_x", "depth_shift_y"):
+            if abs(getattr(self, name)) > 32:
+                raise ValueError(f"{name} must be within +-32 pixels, got {getattr(self, name)}")
         if self.exposure not in ("auto", "on", "off"):
             raise ValueError(f"exposure must be auto, on or off, got {self.exposure!r}")
         if self.pose_refinement not in ("auto", "on", "off"):

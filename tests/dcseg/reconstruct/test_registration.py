@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from dcseg.reconstruct import fit_gaussians
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.registration import (
+    MIN_EDGE_PIXELS,
     MIN_GAIN,
     decide,
     depth_edges,
@@ -57,7 +58,7 @@ def test_shifted_moves_an_image_and_leaves_no_depth_where_nothing_moved_in() -> 
 def test_a_known_shift_is_recovered_and_registered_frames_measure_none() -> None:
     measured = estimate(frames((3, -2)))  # depth 3 px right and 2 px up of its colour
     assert measured["shift_px"] == [-3, 2], measured
-    assert measured["gain"] > 10 * MIN_GAIN
+    assert measured["gain"] > 2 * MIN_GAIN
     assert decide("auto", (0, 0), measured) == (-3, 2)
     fixed = registered(frames((3, -2)), (-3, 2))
     inner = (slice(5, -5), slice(5, -5))
@@ -68,7 +69,9 @@ def test_a_known_shift_is_recovered_and_registered_frames_measure_none() -> None
 
 
 def test_the_decision_follows_the_mode_and_a_given_shift() -> None:
-    measured = {"shift_px": [2, 0], "gain": 0.5}
+    measured = {"shift_px": [2, 0], "gain": 0.5, "edge_pixels": MIN_EDGE_PIXELS}
+    assert decide("auto", (0, 0), measured) == (2, 0)
+    assert decide("auto", (0, 0), {**measured, "edge_pixels": MIN_EDGE_PIXELS - 1}) == (0, 0)
     assert decide("off", (0, 0), measured) == (0, 0)
     assert decide("auto", (0, 0), {"shift_px": [2, 0], "gain": MIN_GAIN / 2}) == (0, 0)
     assert decide("auto", (-1, 4), measured) == (-1, 4)  # given wins, whatever is measured

@@ -124,11 +124,22 @@ class ReconstructConfig:
     in ``depth_shift_x`` / ``depth_shift_y`` is applied instead, without estimation.
     ``reconstruction.json`` reports it (``sensor.registration``)."""
 
-    depth_shift_x: int = option(0, bounds=(-32, 32), flag="--depth-shift-x")
+    depth_shift_x: int = option(
+        0,
+        bounds=(-32, 32),
+        flag="--depth-shift-x",
+        help="a known colour/depth misregistration: move every depth map this many pixels "
+        "right (negative: left) onto its colour, without estimation (default 0)",
+    )
     """A known colour/depth misregistration: move every depth map this many pixels right
     (negative: left) onto its colour image; 0 with ``depth_shift_y`` 0 = none given."""
 
-    depth_shift_y: int = option(0, bounds=(-32, 32), flag="--depth-shift-y")
+    depth_shift_y: int = option(
+        0,
+        bounds=(-32, 32),
+        flag="--depth-shift-y",
+        help="likewise, pixels down (negative: up)",
+    )
     """Likewise, pixels down (negative: up)."""
 
     # --- exposure and white balance (dcseg.reconstruct.exposure) ---

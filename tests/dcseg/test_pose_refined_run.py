@@ -29,6 +29,7 @@ def tiny_config(pose_lr: float) -> PipelineConfig:
             iterations=60,
             holdout=4,
             pose_lr=pose_lr,
+            pose_from=0,
             pose_align_steps=5,
             pose_refinement="on",
         ),

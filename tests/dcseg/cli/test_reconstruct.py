@@ -54,7 +54,9 @@ def test_reconstruct_writes_ply_and_report(
     assert report["test_frames"] == ["frame000", "frame003"]
     assert [v["name"] for v in report["views"]] == report["test_frames"]
     assert report["psnr"] > 0 and report["depth_mae"] >= 0
-    assert set(report["seconds"]) == {"read", "init", "sensor", "train", "eval", "write"}
+    assert set(report["seconds"]) == {
+        "read", "registration", "init", "sensor", "train", "eval", "write"
+    }  # fmt: skip
     assert report["config"]["iterations"] == 8 and report["seed"] == 1
     assert report["config"]["centre_weight"] == 0.0  # surface priors are opt-in
     assert report["config"]["depth_filter_window"] == 5
@@ -63,7 +65,10 @@ def test_reconstruct_writes_ply_and_report(
     sensor = report["sensor"]  # what was detected and applied
     assert sensor["depth"]["noise"]["a_at_1m"] == report["depth_noise_at_1m"]
     assert 0.0 <= sensor["depth"]["missing_fraction"] <= 1.0
-    assert set(sensor) == {"frames_measured", "depth", "exposure", "poses", "motion_blur"}
+    assert set(sensor) == {
+        "frames_measured", "depth", "exposure", "poses", "motion_blur", "registration"
+    }  # fmt: skip
+    assert sensor["registration"]["mode"] == "auto" and "refined" in sensor["poses"]
     assert "geometry" not in report  # no ground truth beside the capture
     assert report["backend"] == "cpu"
     assert report["peak_memory_mb"] > 0 and "torch" in report["versions"]

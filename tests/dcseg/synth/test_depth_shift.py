@@ -19,8 +19,8 @@ def test_the_depth_moves_and_the_colour_and_truth_stay() -> None:
         np.testing.assert_array_equal(b.depth, shifted(a.depth, (2, -1)))
         np.testing.assert_array_equal(a.rgb, b.rgb)
         assert not b.depth[:, :2].any() and not b.depth[-1].any()
-    for a, b in zip(plain.gt_depth, moved.gt_depth, strict=True):
-        np.testing.assert_array_equal(a, b)
+    for truth, kept in zip(plain.gt_depth, moved.gt_depth, strict=True):
+        np.testing.assert_array_equal(truth, kept)
 
 
 def test_the_shift_is_validated() -> None:

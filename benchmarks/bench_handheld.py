@@ -143,8 +143,10 @@ def ensure_scene(scene: Path, cfg: SynthConfig) -> None:
         "motion_blur_share": cfg.motion_blur_share,
         "depth_sigma": cfg.level().depth_sigma,
         "error_model": cfg.segmenter(),
+        "depth_shift_px": list(cfg.depth_shift_px),
     }
     found = {key: made.get(key) for key in wanted}
+    found["depth_shift_px"] = made.get("depth_shift_px", [0, 0])  # before the shift
     found["motion_blur_share"] = made.get("motion_blur_share", 1.0)  # before the share
     if "error_model" not in made:  # scenes made before the generators: the level's masks
         found["error_model"] = "realistic" if made["noise"] == "realistic" else None
@@ -191,6 +193,11 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def _tuples(overrides: dict[str, Any]) -> dict[str, Any]:
+    """``overrides`` with JSON lists (``depth_shift_px``) as the tuples SynthConfig holds."""
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--work", type=Path, required=True)
@@ -209,7 +216,7 @@ def main() -> int:
         rows = []
         for seed in args.seeds:
             cfg = SynthConfig(seed=seed, frames=args.frames, width=args.size[0],
-                              height=args.size[1], **overrides)  # fmt: skip
+                              height=args.size[1], **_tuples(overrides))  # fmt: skip
             scene = args.work / scene_name / f"s{seed}" / "scene"
             run = args.work / name / f"s{seed}" / "run"
             row = {"variant": name, "seed": seed, **run_one(scene, run, cfg, reconstruct)}

@@ -283,6 +283,7 @@ def score_run(work: Path, noise: str, layout: int, args: argparse.Namespace) -> 
         "run_seconds": saved.record.get("seconds", {}),
         "capture_faults": capture_faults(root / "scene" / "scene.json"),
         "pose_lr": saved.record["config"]["reconstruct"].get("pose_lr", 0.0),
+        "pose_refinement": saved.record["config"]["reconstruct"].get("pose_refinement"),
         "baselines": baselines(saved, scorer, cfg),
     }
     with tempfile.TemporaryDirectory() as tmp:

@@ -40,9 +40,9 @@ def add_reconstruct_flags(parser: Any) -> None:
     parser.add_argument(
         "--refine-poses",
         action="store_true",
-        help="fit a pose correction per frame with the Gaussians, for captures whose poses "
-        "come from tracking (handheld sensors, phones); later stages use the refined poses: "
-        "dcseg.reconstruct.config.REFINE_POSES",
+        help="always fit a pose correction per frame with the Gaussians (the same as "
+        "--pose-refinement on; the default auto does when the depth shows misaligned poses); "
+        "later stages use the refined poses: dcseg.reconstruct.config.REFINE_POSES",
     )
 
 

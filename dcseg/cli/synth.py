@@ -87,6 +87,14 @@ def register(subparsers: Any) -> None:
         "the trajectory, log gain with this standard deviation (0-1; default 0 = constant)",
     )
     parser.add_argument(
+        "--depth-shift",
+        type=_shift,
+        default=(0, 0),
+        metavar="DX,DY",
+        help="colour/depth misregistration: move every depth map DX pixels right and DY "
+        "down against the colour (each within +-16; default 0,0 = registered)",
+    )
+    parser.add_argument(
         "--motion-blur-share",
         type=float,
         default=1.0,
@@ -105,6 +113,16 @@ def register(subparsers: Any) -> None:
         help="replace OUT if it holds an earlier synth output",
     )
     parser.set_defaults(run=run)
+
+
+def _shift(text: str) -> tuple[int, int]:
+    """``"DX,DY"`` as two integers (argparse type of ``--depth-shift``)."""
+    parts = text.split(",")
+    try:
+        dx, dy = (int(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected DX,DY (two integers), got {text!r}") from None
+    return dx, dy
 
 
 def prepare_output(out: Path, overwrite: bool) -> str | None:
@@ -138,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
             motion_blur_share=args.motion_blur_share,
             error_model=args.error_model,
             exposure_spread=args.exposure_spread,
+            depth_shift_px=args.depth_shift,
         )
     except ValueError as exc:
         sys.stderr.write(f"dcseg synth: {exc}\n")

@@ -68,15 +68,34 @@ class ReconstructConfig:
     initialisation and the depth loss. Held-out frames are scored against the sensor depth as
     it is. ``reconstruction.json`` reports their share (``sensor.depth.flying_pixels``)."""
 
-    # --- camera poses ---
-    pose_lr: float = option(0.0, bounds=(0.0, 0.1))
-    """Learning rate (radians and metres per step) of a rigid correction per training view
-    fitted with the Gaussians (:mod:`dcseg.reconstruct.poses`), decaying log-linearly to a
-    tenth of it; the refined poses replace the capture's for every later stage. 0 = the
-    capture's poses are exact."""
+    # --- camera poses (dcseg.reconstruct.poses, dcseg.reconstruct.pose_check) ---
+    pose_refinement: str = option(
+        "auto",
+        choices=("auto", "on", "off"),
+        flag="--pose-refinement",
+        help="fit a pose correction per frame with the Gaussians: auto = when consecutive "
+        "frames' depth disagrees more than the noise explains (tracked, handheld poses)",
+    )
+    """A rigid correction per training view fitted with the Gaussians from step ``pose_from``
+    (:mod:`dcseg.reconstruct.poses`); held-out views are aligned to the fit before they are
+    scored and the refined poses replace the capture's for every later stage. ``auto``: on
+    when consecutive training frames' depth, projected with the capture's poses, disagrees by
+    more than :data:`dcseg.reconstruct.pose_check.THRESHOLD` times what the measured depth
+    noise explains (``sensor.poses`` in ``reconstruction.json``); RGB-only captures are
+    refined only with ``on``. Measured with ``benchmarks/bench_handheld.py`` on 40-view
+    320x240 synthetic scenes (benchmarks/README "Handheld captures"): poses off by 0.5
+    degrees and 1 cm per frame, held-out PSNR 19.0 -> 25.0 dB, depth MAE against the true
+    depth 40.8 -> 16.6 mm; exact poses refined anyway (``on``) 27.95 -> 25.90 dB (the
+    corrections also absorb some of the fit's own error), which ``auto`` leaves alone."""
 
-    pose_from: int = option(0, bounds=(0, 100000))
-    """Step from which poses are refined (the scene first fits the capture's poses)."""
+    pose_lr: float = option(1e-3, bounds=(0.0, 0.1))
+    """Learning rate (radians and metres per step) of the pose corrections, decaying
+    log-linearly to a tenth of it; 0 = never refine (whatever ``pose_refinement`` says).
+    A third of it recovered less under pose error (22.8 instead of 25.0 dB, one scene)."""
+
+    pose_from: int = option(500, bounds=(0, 100000))
+    """Step from which poses are refined (the scene first fits the capture's poses).
+    Refining from step 0 cost exact poses more (24.9 dB) for 0.3 dB more under pose error."""
 
     pose_align_steps: int = option(30, bounds=(0, 10000))
     """With ``pose_lr`` > 0, steps that align each held-out view's pose to the fitted
@@ -88,6 +107,40 @@ class ReconstructConfig:
 
     pose_align_lr: float = option(2e-3, bounds=(1e-06, 0.1))
     """Starting rate of those alignment steps (decaying to a tenth)."""
+
+    # --- colour/depth registration (dcseg.reconstruct.registration) ---
+    depth_registration: str = option(
+        "auto",
+        choices=("auto", "off"),
+        flag="--depth-registration",
+        help="colour/depth misregistration (separate depth and colour cameras): auto = "
+        "estimate the pixel shift between depth and colour edges and move the depth by it "
+        "when clearly non-zero",
+    )
+    """``auto``: the shift that lays the training frames' depth edges onto their colour edges
+    (:func:`dcseg.reconstruct.registration.estimate`) moves every frame's depth (trained and
+    held out) when it is non-zero and raises the edges' colour contrast by more than
+    :data:`~dcseg.reconstruct.registration.MIN_GAIN`; ``off``: not estimated. A shift given
+    in ``depth_shift_x`` / ``depth_shift_y`` is applied instead, without estimation.
+    ``reconstruction.json`` reports it (``sensor.registration``)."""
+
+    depth_shift_x: int = option(
+        0,
+        bounds=(-32, 32),
+        flag="--depth-shift-x",
+        help="a known colour/depth misregistration: move every depth map this many pixels "
+        "right (negative: left) onto its colour, without estimation (default 0)",
+    )
+    """A known colour/depth misregistration: move every depth map this many pixels right
+    (negative: left) onto its colour image; 0 with ``depth_shift_y`` 0 = none given."""
+
+    depth_shift_y: int = option(
+        0,
+        bounds=(-32, 32),
+        flag="--depth-shift-y",
+        help="likewise, pixels down (negative: up)",
+    )
+    """Likewise, pixels down (negative: up)."""
 
     # --- exposure and white balance (dcseg.reconstruct.exposure) ---
     exposure: str = option("auto", choices=("auto", "on", "off"), flag="--exposure")
@@ -250,8 +303,19 @@ class ReconstructConfig:
             )
         if not self.depth_filter_k > 0:
             raise ValueError(f"depth_filter_k must be > 0, got {self.depth_filter_k}")
+        if self.depth_registration not in ("auto", "off"):
+            raise ValueError(
+                f"depth_registration must be auto or off, got {self.depth_registration!r}"
+            )
+        for name in ("depth_shift_x", "depth_shift_y"):
+            if abs(getattr(self, name)) > 32:
+                raise ValueError(f"{name} must be within +-32 pixels, got {getattr(self, name)}")
         if self.exposure not in ("auto", "on", "off"):
             raise ValueError(f"exposure must be auto, on or off, got {self.exposure!r}")
+        if self.pose_refinement not in ("auto", "on", "off"):
+            raise ValueError(
+                f"pose_refinement must be auto, on or off, got {self.pose_refinement!r}"
+            )
         if self.pose_lr < 0:
             raise ValueError(f"pose_lr must be >= 0, got {self.pose_lr}")
         if self.pose_from < 0:
@@ -317,15 +381,9 @@ by default: on held-out segmentation layouts the 3D labels are 1.3-5.3 mIoU lowe
 noise level; small objects keep 2-2.5x fewer Gaussians and lose most (benchmarks/README
 "Surface priors and segmentation")."""
 
-REFINE_POSES: dict[str, float | int] = {"pose_lr": 1e-3, "pose_from": 500}
-"""The overrides of ``--refine-poses`` (off by default): from step 500 a pose correction per
-frame is fitted with the Gaussians; held-out frames are aligned to the fit before they are
-scored (:mod:`dcseg.reconstruct.poses`). Measured with ``benchmarks/bench_handheld.py`` on two
-40-view 320x240 synthetic scenes (benchmarks/README "Handheld captures"): with poses off by
-0.5 degrees and 1 cm per frame, held-out PSNR 19.0 -> 25.0 dB and depth MAE against the true
-depth 40.8 -> 16.6 mm; with exact poses 27.95 -> 25.90 dB (the corrections also absorb some of
-the fit's own error), hence opt-in. Refining from step 0 cost exact poses more (24.9 dB) for
-0.3 dB more under pose error; a third of the rate recovered less (22.8 dB, one scene)."""
+REFINE_POSES: dict[str, str] = {"pose_refinement": "on"}
+"""The override of ``--refine-poses``: poses are refined whatever the detection says (the same
+as ``--pose-refinement on``; the default ``auto`` refines when it detects misaligned poses)."""
 
 PRESETS: dict[str, ReconstructConfig] = {"fast": FAST, "paper": PAPER}
 """Named configurations, selectable with ``dcseg reconstruct --preset``."""

@@ -13,7 +13,8 @@ evenly spread, for the per-pixel measurements):
   :mod:`dcseg.reconstruct.exposure` measures at corresponding pixels and fits);
 * ``poses``: how well consecutive frames' depth agrees once one is projected into the other
   with the capture's poses, next to what the measured noise alone explains: a ratio well above
-  1 points at pose (or depth-to-colour) misalignment.
+  1 points at pose misalignment (:mod:`dcseg.reconstruct.pose_check` decides from it
+  whether poses are refined).
 """
 
 from __future__ import annotations
@@ -46,11 +47,12 @@ LUMA = np.array([0.299, 0.587, 0.114])
 
 
 def sensor_report(
-    frames: Sequence[Frame], drop_flying: bool, refine_poses: bool = False, median_window: int = 1
+    frames: Sequence[Frame], drop_flying: bool, median_window: int = 1
 ) -> dict[str, Any]:
-    """The detected effects of ``frames`` (module docstring); ``drop_flying``, ``refine_poses``,
-    ``median_window``: whether the reconstruction drops flying pixels, refines poses and the
-    depth filter's window (1 = off), as configured."""
+    """The detected effects of ``frames`` (module docstring); ``drop_flying``,
+    ``median_window``: whether the reconstruction drops flying pixels and the depth filter's
+    window (1 = off), as configured. Whether poses are refined is decided from ``poses``
+    (:mod:`dcseg.reconstruct.pose_check`)."""
     if not frames:
         return {}
     sample = _spread(frames, MAX_FRAMES)
@@ -62,7 +64,7 @@ def sensor_report(
         "frames_measured": len(sample),
         "depth": depth,
         "exposure": exposure(frames),
-        "poses": depth_agreement(sample, a, depth["noise"]["quantisation_step"], refine_poses),
+        "poses": depth_agreement(sample, a, depth["noise"]["quantisation_step"]),
     }
 
 
@@ -116,9 +118,7 @@ def _brightness(rgb: NDArray[np.uint8]) -> float:
     return float((sub @ LUMA).mean() / 255.0)
 
 
-def depth_agreement(
-    frames: Sequence[Frame], a: float, step: float, refined: bool = False
-) -> dict[str, Any] | None:
+def depth_agreement(frames: Sequence[Frame], a: float, step: float) -> dict[str, Any] | None:
     """Median over consecutive pairs of ``frames`` of the median absolute difference between
     one frame's depth projected into the other and the other's depth (occlusions excluded),
     the same expected from the noise alone (``sqrt(2) a z^2`` plus a step), and their ratio;
@@ -139,7 +139,6 @@ def depth_agreement(
         "expected_from_noise": e,
         "ratio": m / e if e > 0 else None,
         "pairs": len(measured),
-        "refined": refined,
     }
 
 

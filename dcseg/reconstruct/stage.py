@@ -14,7 +14,7 @@ import torch
 from numpy.typing import NDArray
 
 from dcseg.gaussians import Gaussians
-from dcseg.reconstruct import exposure
+from dcseg.reconstruct import exposure, pose_check, registration
 from dcseg.reconstruct.align import align_pose
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.depth_filter import DepthFilter
@@ -94,6 +94,11 @@ def fit_gaussians(
     train, test = split_frames(capture.frames, cfg.holdout)
     seconds: dict[str, float] = {}
     start = time.perf_counter()
+    registration_entry = None
+    if capture.has_depth:
+        train, test, registration_entry = _register(train, test, cfg)
+    seconds["registration"] = time.perf_counter() - start
+    start = time.perf_counter()
     if capture.has_depth:
         extent = scene_extent(train)
         init = init_from_frames(train, cfg, extent=extent, device=device)
@@ -108,14 +113,16 @@ def fit_gaussians(
     log.info("init: %d Gaussians, extent %.3f m, %d training views", len(init), extent, len(views))
     start = time.perf_counter()
     if capture.has_depth:
-        sensor = sensor_report(
-            train, cfg.drop_flying_pixels, cfg.pose_lr > 0, cfg.depth_filter_window
-        )
+        sensor = sensor_report(train, cfg.drop_flying_pixels, cfg.depth_filter_window)
         log_report(sensor)
         colour_on = _detect_exposure(train, cfg, sensor)
-    else:  # the detection matches pixels through depth: only an explicit "on" fits one
+        cfg = _detect_misalignment(cfg, sensor)
+    else:  # the detections match pixels through depth: only an explicit "on" applies
         sensor = rgb_only_report(capture, train)
         colour_on = cfg.exposure == "on"
+        cfg = cfg if cfg.pose_refinement == "on" else replace(cfg, pose_lr=0.0)
+    if registration_entry is not None:
+        sensor["registration"] = registration_entry
     blur = blur_decision(train, cfg.blurred_frames)
     sensor["motion_blur"] = blur.report([f.name for f in train])
     log_decision(blur)
@@ -188,6 +195,31 @@ def _detect_exposure(
         sensor["exposure"].update(report)
         exposure.log_detection(report)
     return on
+
+
+def _register(
+    train: Sequence[Frame], test: Sequence[Frame], cfg: ReconstructConfig
+) -> tuple[tuple[Frame, ...], tuple[Frame, ...], dict[str, Any]]:
+    """The frames with their depth moved onto the colour by the given or estimated shift
+    (:mod:`dcseg.reconstruct.registration`), and the ``sensor.registration`` entry (logged)."""
+    given = (cfg.depth_shift_x, cfg.depth_shift_y)
+    auto = given == (0, 0) and cfg.depth_registration == "auto"
+    measured = registration.estimate(train) if auto else None
+    shift = registration.decide(cfg.depth_registration, given, measured)
+    entry = registration.report(cfg.depth_registration, given, measured, shift)
+    registration.log_decision(entry)
+    return registration.registered(train, shift), registration.registered(test, shift), entry
+
+
+def _detect_misalignment(cfg: ReconstructConfig, sensor: dict[str, Any]) -> ReconstructConfig:
+    """``cfg`` with ``pose_lr`` 0 unless poses are refined (:func:`pose_check.decide`); the
+    decision goes into ``sensor["poses"]`` and the log."""
+    agreement = sensor.get("poses")
+    on = pose_check.decide(cfg.pose_refinement, agreement) and cfg.pose_lr > 0
+    report = pose_check.detection_report(agreement, cfg.pose_refinement, on)
+    sensor["poses"] = {**(agreement or {}), **report}
+    pose_check.log_detection(agreement, report)
+    return cfg if on else replace(cfg, pose_lr=0.0)
 
 
 def held_out_line(metrics: Metrics) -> str:

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.errors import InputError
+from dcseg.reconstruct.registration import shifted
 from dcseg.synth.agnostic import simulate_agnostic
 from dcseg.synth.blur import MAX_BLUR_PX, blur_flow, motion_blur
 from dcseg.synth.cameras import CameraModel, orbit_poses
@@ -47,6 +48,8 @@ logger = logging.getLogger(__name__)
 GT_VOXEL = 0.02
 """Voxel size (metres) of the ground-truth point cloud."""
 CAMERA_RADII = (2.1, 1.6)
+MAX_DEPTH_SHIFT = 16
+"""Largest ``depth_shift_px`` component (pixels)."""
 
 # Independent random streams, so that changing one stage leaves the others' draws alone.
 _SCENE, _CAMERA, _AGNOSTIC, _SEMANTIC, _DEPTH, _PARTS, _FATES, _POSE, _EXPOSURE, _BLUR = range(10)
@@ -84,6 +87,10 @@ class SynthConfig:
         motion_blur_share: the share of views that are blurred (drawn at random, seeded);
             the others stay sharp, as in a handheld capture where only the fast turns smear
             the image. 1 = every view.
+        depth_shift_px: colour/depth misregistration (separate depth and colour cameras,
+            calibrated off): every depth map moved this many pixels right (``(dx, dy)``,
+            negative = left / up) against the colour, the uncovered border without depth;
+            masks and ground truth stay with the colour. ``(0, 0)`` = registered.
         error_model: a generator of :data:`~dcseg.synth.errors.ERROR_MODELS` makes the masks
             instead of the noise level (which then sets the depth noise only); "" = the
             level's own masks (``realistic`` for the ``realistic`` level).
@@ -102,6 +109,7 @@ class SynthConfig:
     motion_blur_share: float = 1.0
     error_model: str = ""
     exposure_spread: float = 0.0
+    depth_shift_px: tuple[int, int] = (0, 0)
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -131,6 +139,11 @@ class SynthConfig:
         if not 0.0 <= self.motion_blur_share <= 1.0:
             raise ValueError(
                 f"motion_blur_share must be between 0 and 1, got {self.motion_blur_share}"
+            )
+        if any(abs(v) > MAX_DEPTH_SHIFT for v in self.depth_shift_px):
+            raise ValueError(
+                f"depth_shift_px must be within +-{MAX_DEPTH_SHIFT} pixels, "
+                f"got {self.depth_shift_px}"
             )
         if self.error_model and self.error_model not in ERROR_MODELS:
             raise ValueError(
@@ -322,7 +335,7 @@ def _simulate_frames(
         name = f"frame_{i:04d}"
         xyz = backproject(view.depth, k.matrix(), c2w)
         out = segmenter.view(cfg, i, ViewTruth(inst_map, class_map, xyz, view.depth))
-        depth = noisy_depth(view.depth, level, _rng(cfg, _DEPTH, i))
+        depth = shifted(noisy_depth(view.depth, level, _rng(cfg, _DEPTH, i)), cfg.depth_shift_px)
         pose = perturbed_pose(c2w, cfg.pose_error_deg, cfg.pose_error_m, _rng(cfg, _POSE, i))
         rgb = _blurred(cfg, view, k.matrix(), poses, i) if i in smeared else view.rgb
         rgb = exposed(rgb, gains[i])

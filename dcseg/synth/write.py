@@ -107,6 +107,7 @@ def scene_summary(scene: SynthScene, timings: dict[str, float]) -> dict[str, Any
         "pose_error": {"deg": cfg.pose_error_deg, "m": cfg.pose_error_m},
         "motion_blur_px": cfg.motion_blur_px,
         "exposure_spread": cfg.exposure_spread,
+        "depth_shift_px": list(cfg.depth_shift_px),
         "motion_blur_share": cfg.motion_blur_share,
         "blurred_views": sorted(blurred_views(cfg)),
         "instances": [inst.record() for inst in scene.instances],

@@ -25,7 +25,13 @@ def tiny_config(pose_lr: float) -> PipelineConfig:
     return replace(
         cfg,
         reconstruct=replace(
-            cfg.reconstruct, iterations=60, holdout=4, pose_lr=pose_lr, pose_align_steps=5
+            cfg.reconstruct,
+            iterations=60,
+            holdout=4,
+            pose_lr=pose_lr,
+            pose_from=0,
+            pose_align_steps=5,
+            pose_refinement="on",
         ),
         affinity=replace(cfg.affinity, iterations=40, rays=256),
     )

@@ -54,7 +54,9 @@ def test_reconstruct_writes_ply_and_report(
     assert report["test_frames"] == ["frame000", "frame003"]
     assert [v["name"] for v in report["views"]] == report["test_frames"]
     assert report["psnr"] > 0 and report["depth_mae"] >= 0
-    assert set(report["seconds"]) == {"read", "init", "sensor", "train", "eval", "write"}
+    assert set(report["seconds"]) == {
+        "read", "registration", "init", "sensor", "train", "eval", "write"
+    }  # fmt: skip
     assert report["config"]["iterations"] == 8 and report["seed"] == 1
     assert report["config"]["centre_weight"] == 0.0  # surface priors are opt-in
     assert report["config"]["depth_filter_window"] == 5
@@ -63,7 +65,10 @@ def test_reconstruct_writes_ply_and_report(
     sensor = report["sensor"]  # what was detected and applied
     assert sensor["depth"]["noise"]["a_at_1m"] == report["depth_noise_at_1m"]
     assert 0.0 <= sensor["depth"]["missing_fraction"] <= 1.0
-    assert set(sensor) == {"frames_measured", "depth", "exposure", "poses", "motion_blur"}
+    assert set(sensor) == {
+        "frames_measured", "depth", "exposure", "poses", "motion_blur", "registration"
+    }  # fmt: skip
+    assert sensor["registration"]["mode"] == "auto" and "refined" in sensor["poses"]
     assert "geometry" not in report  # no ground truth beside the capture
     assert report["backend"] == "cpu"
     assert report["peak_memory_mb"] > 0 and "torch" in report["versions"]
@@ -140,7 +145,9 @@ def test_refine_poses_flag_refines_and_reports_the_poses(
     plain = tmp_path / "plain"
     assert main(["reconstruct", str(tmp_path), "--out", str(plain), "--iterations", "4"]) == 0
     report = json.loads((plain / "reconstruction.json").read_text())
-    assert report["config"]["pose_lr"] == 0.0 and report["pose_refinement"] is None
+    assert report["config"]["pose_refinement"] == "auto" and report["pose_refinement"] is None
+    assert report["sensor"]["poses"]["mode"] == "auto"
+    assert report["sensor"]["poses"]["refined"] is False
     assert not (plain / "poses.json").exists()
 
 
@@ -164,8 +171,14 @@ def test_reconstruct_refuses_a_non_empty_out_and_overwrite_drops_stale_poses(
 
 def test_run_flag_puts_pose_refinement_in_the_job_config() -> None:
     from dcseg.cli import build_parser
+    from dcseg.cli._pipeline import reconstruct_fields
 
     run = ["run", "cap", "--out", "o", "--agnostic-masks", "a", "--semantic-masks", "s"]
     run += ["--vocabulary", "v", "--refine-poses"]
     cfg = job_config(build_parser().parse_args(run)).pipeline
-    assert cfg.reconstruct.pose_lr == REFINE_POSES["pose_lr"] > 0
+    assert cfg.reconstruct.pose_refinement == REFINE_POSES["pose_refinement"] == "on"
+    argv = ["reconstruct", "cap", "--out", "o", "--pose-refinement", "off"]
+    assert reconstruct_fields(build_parser().parse_args(argv)) == {"pose_refinement": "off"}
+    argv[-1] = "sometimes"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(argv)

@@ -52,7 +52,9 @@ def test_metrics_are_finite(result: Reconstruction) -> None:
     assert math.isfinite(view.surface_depth_mae) and view.surface_depth_mae < 0.5
     assert result.metrics.psnr == view.psnr
     assert result.metrics.surface_depth_mae == pytest.approx(view.surface_depth_mae)
-    assert set(result.seconds) == {"init", "sensor", "train", "eval"}
+    assert set(result.seconds) == {"registration", "init", "sensor", "train", "eval"}
+    assert result.sensor["poses"]["refined"] is False and result.poses is None  # exact poses
+    assert result.sensor["registration"]["applied_shift_px"] == [0, 0]  # registered
     assert result.sensor["depth"]["flying_pixels"]["dropped"] is True
     blur = result.sensor["motion_blur"]
     assert blur["mode"] == "weight" and blur["frames_checked"] == 3

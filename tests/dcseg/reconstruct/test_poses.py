@@ -101,7 +101,7 @@ def test_a_fit_with_refinement_returns_every_frame_pose() -> None:
     tiny = ReconstructConfig(
         iterations=30, holdout=4, train_downscale=1, init_pixel_stride=1, sh_degree=0,
         densify_from=10, densify_every=10, densify_until=20, max_gaussians=2500,
-        pose_lr=1e-3, pose_align_steps=5,
+        pose_lr=1e-3, pose_from=0, pose_align_steps=5, pose_refinement="on",
     )  # fmt: skip
     result = fit_gaussians(capture, tiny)
     assert result.poses is not None and result.original_poses is not None

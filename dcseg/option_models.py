@@ -40,7 +40,13 @@ def _plain_name(name: str) -> str:
     return name
 
 
-NAME = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(_plain_name)]
+NAME = Annotated[
+    str,
+    # the pattern documents _plain_name in the schema (clients and fuzzers generate to it);
+    # the validator checks it, with its own message
+    Field(min_length=1, max_length=200, json_schema_extra={"pattern": r"^\S([^\n]*\S)?$"}),
+    AfterValidator(_plain_name),
+]
 """One name of a list option: non-blank, without leading or trailing blanks (the vocabulary
 reader strips its names, so a padded name would never match one)."""
 

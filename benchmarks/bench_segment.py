@@ -270,6 +270,14 @@ def capture_faults(scene_json: Path) -> dict[str, Any]:
     }
 
 
+def applied_pose_lr(record: dict[str, Any]) -> float:
+    """The pose learning rate the reconstruction trained with (0 where ``auto`` did not
+    refine; runs before ``config_changes`` report the requested one)."""
+    requested = float(record["config"]["reconstruct"].get("pose_lr", 0.0))
+    changes = record.get("reconstruction", {}).get("config_changes", {})
+    return float(changes.get("pose_lr", {}).get("applied", requested))
+
+
 def score_run(work: Path, noise: str, layout: int, args: argparse.Namespace) -> dict[str, Any]:
     root = run_dir(work, noise, layout)
     saved = load_run(root / "run")
@@ -282,7 +290,7 @@ def score_run(work: Path, noise: str, layout: int, args: argparse.Namespace) -> 
         "group": "heldout" if layout in args.heldout else "tuning",
         "run_seconds": saved.record.get("seconds", {}),
         "capture_faults": capture_faults(root / "scene" / "scene.json"),
-        "pose_lr": saved.record["config"]["reconstruct"].get("pose_lr", 0.0),
+        "pose_lr": applied_pose_lr(saved.record),
         "pose_refinement": saved.record["config"]["reconstruct"].get("pose_refinement"),
         "baselines": baselines(saved, scorer, cfg),
     }

@@ -91,8 +91,27 @@ def _report(
         "device": str(device),
         "seed": cfg.seed,
         "config": asdict(cfg),
+        "config_changes": config_changes(cfg, result.applied),
         "pose_refinement": _refinement(result),
     }
+
+
+def config_changes(
+    requested: ReconstructConfig, applied: ReconstructConfig | None
+) -> dict[str, dict[str, Any]]:
+    """The fields the run changed from the requested configuration (the detections, an
+    RGB-only capture), each as ``{"requested": ..., "applied": ...}``; the backend resolved
+    from ``auto`` is reported as ``backend``, not here.
+
+    Example:
+        >>> cfg = ReconstructConfig()
+        >>> config_changes(cfg, replace(cfg, pose_lr=0.0))
+        {'pose_lr': {'requested': 0.001, 'applied': 0.0}}
+    """
+    if applied is None:
+        return {}
+    wanted, ran = asdict(replace(requested, backend=applied.backend)), asdict(applied)
+    return {k: {"requested": wanted[k], "applied": ran[k]} for k in wanted if wanted[k] != ran[k]}
 
 
 def _refinement(result: Reconstruction) -> dict[str, Any] | None:

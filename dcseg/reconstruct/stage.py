@@ -52,6 +52,9 @@ class Reconstruction:
         original_poses: the capture's poses of the same frames (None likewise).
         sensor: what was detected in the training frames and applied
             (:func:`dcseg.reconstruct.sensor.sensor_report`).
+        applied: the configuration the optimisation ran with: the requested one as the
+            detections (pose refinement off: ``pose_lr`` 0) and an RGB-only capture (depth
+            steps off) changed it; None when not recorded.
     """
 
     gaussians: Gaussians
@@ -66,6 +69,7 @@ class Reconstruction:
     poses: dict[str, NDArray[np.float64]] | None = None
     original_poses: dict[str, NDArray[np.float64]] | None = None
     sensor: dict[str, Any] = field(default_factory=dict)
+    applied: ReconstructConfig | None = None
 
 
 def fit_gaussians(
@@ -168,6 +172,7 @@ def fit_gaussians(
         poses=poses,
         original_poses=None if poses is None else {f.name: f.c2w for f in capture.frames},
         sensor=sensor,
+        applied=cfg,
     )
 
 

@@ -8,6 +8,7 @@ import pytest
 
 from dcseg.reconstruct import fit_gaussians
 from dcseg.reconstruct.config import ReconstructConfig
+from dcseg.reconstruct.job import config_changes
 from dcseg.reconstruct.pose_check import THRESHOLD, decide, detection_report
 from dcseg.reconstruct.sensor import sensor_report
 from dcseg.types import Capture
@@ -66,8 +67,11 @@ def test_auto_refines_the_misaligned_capture_only(exact: Capture, misaligned: Ca
     kept = fit_gaussians(exact, tiny)
     assert kept.poses is None
     assert kept.sensor["poses"]["refined"] is False and kept.sensor["poses"]["mode"] == "auto"
+    changes = {"pose_lr": {"requested": tiny.pose_lr, "applied": 0.0}}
+    assert config_changes(tiny, kept.applied) == changes
     refined = fit_gaussians(misaligned, tiny)
     assert refined.poses is not None and refined.sensor["poses"]["refined"] is True
+    assert config_changes(tiny, refined.applied) == {}
     assert refined.sensor["poses"]["detected"] is True
     off = fit_gaussians(misaligned, replace(tiny, pose_refinement="off"))
     assert off.poses is None and off.sensor["poses"]["detected"] is True

@@ -90,6 +90,9 @@ def test_reconstructs_with_photometric_loss_and_reports_depth_off(rgb_only: Capt
     assert depth["present"] is False and depth["sparse_points"] == 1500
     assert depth["off"] == list(DEPTH_OFF) and depth["overrides"] == PHOTOMETRIC_ONLY
     assert "arbitrary" in depth["scale"] and report["sensor"]["poses"] is None
+    changed = {k: v["applied"] for k, v in report["config_changes"].items()}
+    wanted = {k: v for k, v in PHOTOMETRIC_ONLY.items() if getattr(cfg, k) != v}
+    assert changed == {**wanted, "pose_lr": 0.0}, changed
     assert report["initial_gaussians"] == 1500 and len(gaussians) > 0
 
 

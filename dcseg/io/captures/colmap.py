@@ -89,7 +89,11 @@ _ONE_FOCAL = {"SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"}
 _TWO_FOCAL = {"PINHOLE", "OPENCV", "FULL_OPENCV"}
 _QUATERNION_TOLERANCE = 1e-3
 _IMAGE_HEADER = 64 + 1 + 8  # fixed part, the shortest name (its NUL), the 2D point count
-_UNDISTORT = "undistort the images first with `colmap image_undistorter` (it writes PINHOLE)"
+_UNDISTORT = (
+    "undistort the images first with `colmap image_undistorter` or, without COLMAP, "
+    "`pip install pycolmap` and `pycolmap.undistort_images(OUT, MODEL_FOLDER, IMAGES_FOLDER)` "
+    "(both write PINHOLE cameras and undistorted images; segment those)"
+)
 _NO_POINTS = (
     "missing: an RGB-only COLMAP capture (no depth/ folder) is initialised from the sparse "
     "points, so it needs points3D.bin or points3D.txt beside cameras and images"

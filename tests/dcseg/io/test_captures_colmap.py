@@ -149,7 +149,9 @@ def test_distortion_and_fisheye_are_refused(rgbd_scene: RgbdScene, tmp_path: Pat
     assert [str(p) for p in info.value.problems] == [
         "sparse/0/cameras.txt:line 3 (camera 1): camera model OPENCV has lens distortion "
         "(-0.1 0.01 0 0), which dcseg does not model: undistort the images first with "
-        "`colmap image_undistorter` (it writes PINHOLE)"
+        "`colmap image_undistorter` or, without COLMAP, `pip install pycolmap` and "
+        "`pycolmap.undistort_images(OUT, MODEL_FOLDER, IMAGES_FOLDER)` (both write PINHOLE "
+        "cameras and undistorted images; segment those)"
     ]
     cameras = {1: ("FOV", 16, 12, [20.0, 22.0, 8.0, 6.0, 0.9])}
     root = write_colmap(rgbd_scene, tmp_path / "b", cameras=cameras)

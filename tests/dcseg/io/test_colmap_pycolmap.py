@@ -10,6 +10,7 @@ import numpy as np
 import pycolmap
 import pytest
 
+from dcseg.errors import InputError
 from dcseg.io.captures import read_capture
 from dcseg.io.images import write_image
 from dcseg.types import Capture
@@ -119,3 +120,28 @@ def test_fixtures_read_by_pycolmap_as_by_dcseg(
     np.testing.assert_array_equal(sparse.rgb[0], point.color)
     assert sparse.error[0] == pytest.approx(point.error)
     assert sparse.track[0] == point.track.length()
+
+
+def test_a_distorted_model_undistorted_by_pycolmap_as_the_refusal_says(
+    rgbd_scene: RgbdScene, tmp_path: Path
+) -> None:
+    """What the refusal of lens distortion tells users to run reads: pycolmap's undistorter
+    writes a PINHOLE model and images that dcseg reads, with the same poses."""
+    k = rgbd_scene.k
+    params = [k.fx, k.fy, k.cx + 0.5, k.cy + 0.5, -0.2, 0.05, 0.0, 0.0]
+    root = remove_depth(
+        write_colmap(
+            rgbd_scene, tmp_path / "raw", cameras={1: ("OPENCV", k.width, k.height, params)}
+        )
+    )
+    with pytest.raises(InputError, match="pycolmap.undistort_images"):
+        read_capture(root)
+    out = tmp_path / "undistorted"
+    pycolmap.undistort_images(str(out), str(root / "sparse" / "0"), str(root / "images"))
+    capture = read_capture(out)
+    assert capture.depth_source == "none" and capture.names == tuple(
+        f"frame_{i}" for i in range(rgbd_scene.n)
+    )
+    for frame, before in zip(capture.frames, scene_capture(rgbd_scene).frames, strict=True):
+        np.testing.assert_allclose(frame.c2w, before.c2w, atol=1e-6)
+        assert frame.rgb.shape[2] == 3 and frame.intrinsics.fx > 0

@@ -41,6 +41,7 @@ def measure(frames: tuple[Frame, ...]) -> dict[str, Any]:
     end = time.perf_counter()
     return {
         "pose_ratio": None if poses is None else round(poses["ratio"], 4),
+        "tilt_deg": None if poses is None else round(poses["tilt_deg"], 4),
         "depth_disagreement_mm": None if poses is None else poses["depth_disagreement"] * 1000,
         "expected_from_noise_mm": None if poses is None else poses["expected_from_noise"] * 1000,
         "refine": pose_check.decide("auto", poses),

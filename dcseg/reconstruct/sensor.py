@@ -122,15 +122,18 @@ def depth_agreement(frames: Sequence[Frame], a: float, step: float) -> dict[str,
     """Median over consecutive pairs of ``frames`` of the median absolute difference between
     one frame's depth projected into the other and the other's depth (occlusions excluded),
     the same expected from the noise alone (``sqrt(2) a z^2`` plus a step), and their ratio;
-    None with fewer than two frames or no overlap."""
-    measured, expected = [], []
+    and the median of each pair's :func:`tilt` (degrees): the relative rotation about the image
+    axes that the disagreement's systematic part implies, which noise averages away. None with
+    fewer than two frames or no overlap."""
+    measured, expected, tilts = [], [], []
     for first, second in zip(frames[:-1], frames[1:], strict=True):
         pair = _pair_disagreement(first, second)
         if pair is None:
             continue
-        diff, z = pair
+        diff, z, xn, yn = pair
         measured.append(float(np.median(np.abs(diff))))
         expected.append(float(np.median(np.sqrt(2.0) * a * z * z)) + step)
+        tilts.append(tilt(diff, z, xn, yn))
     if not measured:
         return None
     m, e = float(np.median(measured)), float(np.median(expected))
@@ -138,15 +141,38 @@ def depth_agreement(frames: Sequence[Frame], a: float, step: float) -> dict[str,
         "depth_disagreement": m,
         "expected_from_noise": e,
         "ratio": m / e if e > 0 else None,
+        "tilt_deg": float(np.median(tilts)),
         "pairs": len(measured),
     }
 
 
-def _pair_disagreement(
-    src: Frame, dst: Frame
-) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-    """``(projected - observed depth, observed depth)`` of ``src``'s grid pixels seen by
-    ``dst`` with valid depth, occlusions dropped; None when they see nothing in common."""
+def tilt(
+    diff: NDArray[np.float64], z: NDArray[np.float64], xn: NDArray[np.float64],
+    yn: NDArray[np.float64],
+) -> float:  # fmt: skip
+    """Degrees of relative rotation about the camera's x and y axes that best explain the
+    depth differences ``diff`` at depths ``z`` and normalised image coordinates ``(xn, yn)``:
+    to first order a rotation ``w`` and translation ``t`` change a point's depth by
+    ``z (w_x yn - w_y xn) + t_z``, fitted by least squares after dropping differences more
+    than 3 median deviations from the median (edges). Exact poses give ~0 at any noise.
+
+    Example:
+        >>> xn, yn = np.meshgrid(np.linspace(-0.5, 0.5, 20), np.linspace(-0.4, 0.4, 20))
+        >>> xn, yn, z = xn.ravel(), yn.ravel(), np.full(400, 2.0)
+        >>> round(tilt(z * np.radians(0.3) * yn + 0.01, z, xn, yn), 3)
+        0.3
+    """
+    spread = np.median(np.abs(diff - np.median(diff))) + 1e-9
+    keep = np.abs(diff - np.median(diff)) <= 3.0 * spread
+    design = np.stack([np.ones(int(keep.sum())), z[keep] * yn[keep], -z[keep] * xn[keep]], 1)
+    coef, *_ = np.linalg.lstsq(design, diff[keep], rcond=None)
+    return float(np.degrees(np.hypot(coef[1], coef[2])))
+
+
+def _pair_disagreement(src: Frame, dst: Frame) -> tuple[NDArray[np.float64], ...] | None:
+    """``(projected - observed depth, observed depth, x / z, y / z)`` of ``src``'s grid pixels
+    seen by ``dst`` with valid depth (``dst``'s camera coordinates), occlusions dropped; None
+    when they see nothing in common."""
     g = AGREEMENT_GRID
     depth = np.asarray(src.depth[::g, ::g], dtype=np.float64)
     rows, cols = np.nonzero(depth > 0)
@@ -160,15 +186,15 @@ def _pair_disagreement(
     ahead = local[:, 2] > 1e-6
     local = local[ahead]
     kd = dst.intrinsics
-    x = local[:, 0] / local[:, 2] * kd.fx + kd.cx
-    y = local[:, 1] / local[:, 2] * kd.fy + kd.cy
+    xn, yn = local[:, 0] / local[:, 2], local[:, 1] / local[:, 2]
+    x, y = xn * kd.fx + kd.cx, yn * kd.fy + kd.cy
     inside = (x >= 0) & (x < dst.width - 1) & (y >= 0) & (y < dst.height - 1)
     x, y, zp = x[inside], y[inside], local[inside, 2]
     observed = _bilinear(np.asarray(dst.depth, dtype=np.float64), x, y)
     keep = (observed > 0) & (np.abs(zp - observed) < OCCLUSION * observed)
     if int(keep.sum()) < 10:
         return None
-    return zp[keep] - observed[keep], observed[keep]
+    return zp[keep] - observed[keep], observed[keep], xn[inside][keep], yn[inside][keep]
 
 
 def _bilinear(

@@ -9,7 +9,7 @@ import pytest
 from dcseg.reconstruct import fit_gaussians
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.job import config_changes
-from dcseg.reconstruct.pose_check import THRESHOLD, decide, detection_report
+from dcseg.reconstruct.pose_check import THRESHOLD, TILT_THRESHOLD, decide, detection_report
 from dcseg.reconstruct.sensor import sensor_report
 from dcseg.types import Capture
 
@@ -20,8 +20,11 @@ def test_the_modes_decide() -> None:
     assert not decide("auto", None) and not decide("auto", {"ratio": None})
     assert decide("on", below) and decide("on", None)
     assert not decide("off", above)
+    tilted = {"ratio": THRESHOLD / 2, "tilt_deg": TILT_THRESHOLD * 1.5}
+    assert decide("auto", tilted) and not decide("auto", {**tilted, "tilt_deg": 0.01})
     report = detection_report(above, "off", False)
-    assert report == {"threshold": THRESHOLD, "detected": True, "mode": "off", "refined": False}
+    expected = {"threshold": THRESHOLD, "tilt_threshold_deg": TILT_THRESHOLD, "detected": True}
+    assert report == {**expected, "mode": "off", "refined": False}
 
 
 def test_the_option_is_validated() -> None:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from dcseg.reconstruct.pose_check import TILT_THRESHOLD
 from dcseg.reconstruct.sensor import depth_agreement, exposure, sensor_report
 from dcseg.types import Frame, Intrinsics
 from tests.dcseg.reconstruct.test_depth_noise import room, sensor
@@ -76,3 +77,26 @@ def test_frames_that_see_nothing_in_common_give_no_agreement() -> None:
     behind[:3, :3] = np.diag([-1.0, 1.0, -1.0])  # turned round, facing away
     assert depth_agreement([frame(plane_depth(2.0)), frame(plane_depth(2.0), behind)], 0, 0) is None
     assert sensor_report([], drop_flying=True) == {}
+
+
+def tilted_wall(degrees: float, noise: float, seed: int) -> NDArray[np.float32]:
+    """The wall 2 m away seen by a camera tilted ``degrees`` about its x axis, with noise of
+    ``noise`` x z^2 metres."""
+    yn = (np.arange(240, dtype=np.float64)[:, None] - K.cy) / K.fy + np.zeros((1, 320))
+    theta = np.radians(degrees)
+    depth = 2.0 / (np.cos(theta) - np.sin(theta) * yn)
+    rng = np.random.default_rng(seed)
+    return (depth + rng.normal(0.0, noise, depth.shape) * depth**2).astype(np.float32)
+
+
+def test_a_rotation_hidden_in_heavy_noise_shows_as_tilt() -> None:
+    """A 0.4 deg tilt in noise of 7 mm at 1 m: the ratio to the noise stays low (0.6), the tilt
+    is measured; exact poses measure none."""
+    straight = [frame(tilted_wall(0.0, 0.007, seed)) for seed in (0, 1)]
+    exact = depth_agreement(straight, 0.007, 0.0)
+    assert exact is not None and exact["tilt_deg"] < 0.05
+    tilted = [straight[0], frame(tilted_wall(0.4, 0.007, 1))]  # its pose says it is straight
+    wrong = depth_agreement(tilted, 0.007, 0.0)
+    assert wrong is not None and wrong["ratio"] < 0.8
+    assert wrong["tilt_deg"] == pytest.approx(0.4, rel=0.2)  # first order: 0.34
+    assert wrong["tilt_deg"] > TILT_THRESHOLD > exact["tilt_deg"]

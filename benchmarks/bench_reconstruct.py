@@ -90,6 +90,8 @@ def _sensor(sensor: dict[str, Any] | None) -> dict[str, Any] | None:
     """The detected-and-applied report without its per-depth noise bins."""
     if not sensor:
         return None
+    if "noise" not in sensor.get("depth", {}):  # RGB-only: no depth measured
+        return sensor
     noise = {k: v for k, v in sensor["depth"]["noise"].items() if k != "bins"}
     return {**sensor, "depth": {**sensor["depth"], "noise": noise}}
 

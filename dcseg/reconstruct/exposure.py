@@ -252,8 +252,9 @@ def log_detection(report: dict[str, Any]) -> None:
                  "fitted" if report["applied"] else "not fitted")  # fmt: skip
         return
     log.info(
-        "exposure: colour at corresponding pixels changes by up to %.1f %% between frames "
+        "exposure: colour at %s changes by up to %.1f %% between frames "
         "(median %.1f %%, white balance up to %.1f %%, %d pairs): %s, per-view colour %s (%s)",
+        pairs.get("measured_by", "corresponding pixels"),
         100 * pairs["largest_change"],
         100 * pairs["median_change"],
         100 * pairs["largest_wb"],

@@ -18,9 +18,11 @@ from typing import Any
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 
 from dcseg.depthless import DEPTH_OFF, RENDERED_DEPTH, SCALE_NOTE
 from dcseg.gaussians import Gaussians
+from dcseg.reconstruct import exposure as colour
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.init import gaussians_from_points
 from dcseg.reconstruct.sensor import exposure
@@ -31,6 +33,7 @@ __all__ = [
     "photometric_only",
     "rgb_only_init",
     "rgb_only_report",
+    "sparse_colour_changes",
     "sparse_extent",
     "with_rendered_depth",
 ]
@@ -114,6 +117,63 @@ def rgb_only_report(capture: Capture, train: Sequence[Frame]) -> dict[str, Any]:
         "exposure": exposure(train) if train else None,
         "poses": None,
     }
+
+
+def sparse_colour_changes(frames: Sequence[Frame], sparse: SparsePoints | None) -> dict[str, Any]:
+    """Exposure changes between consecutive ``frames`` of an RGB-only capture, measured through
+    its sparse points (no depth to match pixels): each frame's per-channel median
+    ``log(observed / point colour)`` over the points it sees (projected in front of it, inside
+    it, neither value clipped; occluded points are outvoted by the median), and the change of
+    that between consecutive frames, reported as
+    :func:`dcseg.reconstruct.exposure.colour_changes` reports it.
+
+    Example:
+        >>> from dcseg.types import Intrinsics
+        >>> k = Intrinsics(100.0, 100.0, 15.5, 15.5, 32, 32)
+        >>> xy = np.stack(np.meshgrid(np.linspace(-0.1, 0.1, 12), np.linspace(-0.1, 0.1, 12)))
+        >>> xyz = np.concatenate([xy.reshape(2, -1).T, np.ones((144, 1))], 1)
+        >>> points = SparsePoints(xyz, np.full((144, 3), 100, np.uint8), np.zeros(144),
+        ...                       np.full(144, 2))
+        >>> frames = [Frame(str(g), np.full((32, 32, 3), g, np.uint8), np.zeros((32, 32),
+        ...           np.float32), k, np.eye(4)) for g in (100, 100, 120)]
+        >>> round(sparse_colour_changes(frames, points)["largest_change"], 3)
+        0.2
+    """
+    gains = [_frame_gain(f, sparse) for f in frames] if sparse is not None else []
+    logs = [
+        b - a for a, b in zip(gains[:-1], gains[1:], strict=True) if a is not None and b is not None
+    ]
+    if not logs:
+        return {"pairs": 0, "largest_change": None, "median_change": None, "largest_wb": None}
+    per_pair = np.abs(np.array(logs)).max(axis=1)
+    wb = np.array(logs).max(axis=1) - np.array(logs).min(axis=1)
+    return {
+        "pairs": len(logs),
+        "largest_change": float(np.expm1(per_pair.max())),
+        "median_change": float(np.expm1(np.median(per_pair))),
+        "largest_wb": float(np.expm1(wb.max())),
+        "measured_by": "sparse points",
+    }
+
+
+def _frame_gain(frame: Frame, sparse: SparsePoints) -> NDArray[np.float64] | None:
+    """``[3]`` median per-channel log of the frame's colour over the sparse points' colour at
+    the points it sees; None with fewer than ``exposure.MIN_PIXELS`` of them."""
+    w2c = np.linalg.inv(frame.c2w)
+    local = sparse.xyz @ w2c[:3, :3].T + w2c[:3, 3]
+    ahead = local[:, 2] > 1e-6
+    k, z = frame.intrinsics, np.maximum(local[:, 2], 1e-6)
+    x = np.rint(local[:, 0] / z * k.fx + k.cx).astype(np.int64)
+    y = np.rint(local[:, 1] / z * k.fy + k.cy).astype(np.int64)
+    inside = ahead & (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+    seen = np.asarray(frame.rgb, dtype=np.float64)[y[inside], x[inside]]
+    ref = np.asarray(sparse.rgb, dtype=np.float64)[inside]
+    low, high = colour.LIMITS
+    keep = ((seen > low) & (seen < high) & (ref > low) & (ref < high)).all(axis=1)
+    if int(keep.sum()) < colour.MIN_PIXELS:
+        return None
+    gain: NDArray[np.float64] = np.median(np.log(seen[keep] / ref[keep]), axis=0)
+    return gain
 
 
 def with_rendered_depth(capture: Capture, gaussians: Gaussians) -> Capture:

@@ -22,7 +22,7 @@ from dcseg.reconstruct.evaluate import Metrics, evaluate
 from dcseg.reconstruct.fit import FitResult, ProgressCallback, optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
 from dcseg.reconstruct.poses import change_stats, corrected_c2w
-from dcseg.reconstruct.rgbonly import rgb_only_init, rgb_only_report
+from dcseg.reconstruct.rgbonly import rgb_only_init, rgb_only_report, sparse_colour_changes
 from dcseg.reconstruct.sensor import log_report, sensor_report
 from dcseg.reconstruct.sharpness import blur_decision, log_decision
 from dcseg.reconstruct.views import make_view, split_frames
@@ -119,11 +119,11 @@ def fit_gaussians(
     if capture.has_depth:
         sensor = sensor_report(train, cfg.drop_flying_pixels, cfg.depth_filter_window)
         log_report(sensor)
-        colour_on = _detect_exposure(train, cfg, sensor)
+        colour_on = _detect_exposure(exposure.colour_changes(train), cfg, sensor)
         cfg = _detect_misalignment(cfg, sensor)
-    else:  # the detections match pixels through depth: only an explicit "on" applies
+    else:  # RGB-only: colour matched through the sparse points; the pose check needs depth
         sensor = rgb_only_report(capture, train)
-        colour_on = cfg.exposure == "on"
+        colour_on = _detect_exposure(sparse_colour_changes(train, capture.sparse), cfg, sensor)
         cfg = cfg if cfg.pose_refinement == "on" else replace(cfg, pose_lr=0.0)
     if registration_entry is not None:
         sensor["registration"] = registration_entry
@@ -189,11 +189,11 @@ def _held_out_exposure(
 
 
 def _detect_exposure(
-    train: Sequence[Frame], cfg: ReconstructConfig, sensor: dict[str, Any]
+    measured: dict[str, Any], cfg: ReconstructConfig, sensor: dict[str, Any]
 ) -> bool:
-    """Whether a colour transform per view is fitted (:func:`exposure.decide`); the detection
-    goes into ``sensor["exposure"]`` and the log."""
-    measured = exposure.colour_changes(train)
+    """Whether a colour transform per view is fitted (:func:`exposure.decide`) on the
+    ``measured`` changes (:func:`exposure.colour_changes` or, RGB-only,
+    :func:`sparse_colour_changes`); the detection goes into ``sensor["exposure"]`` and the log."""
     on = exposure.decide(cfg.exposure, measured)
     if sensor:
         report = exposure.detection_report(measured, cfg.exposure, on)

@@ -21,6 +21,7 @@ from dcseg.reconstruct.rgbonly import (
     PHOTOMETRIC_ONLY,
     photometric_only,
     rgb_only_init,
+    sparse_colour_changes,
     with_rendered_depth,
 )
 from dcseg.types import Capture
@@ -90,6 +91,9 @@ def test_reconstructs_with_photometric_loss_and_reports_depth_off(rgb_only: Capt
     assert depth["present"] is False and depth["sparse_points"] == 1500
     assert depth["off"] == list(DEPTH_OFF) and depth["overrides"] == PHOTOMETRIC_ONLY
     assert "arbitrary" in depth["scale"] and report["sensor"]["poses"] is None
+    exposure = report["sensor"]["exposure"]
+    assert exposure["pair_changes"]["measured_by"] == "sparse points"
+    assert exposure["detected"] is False and exposure["applied"] is False
     changed = {k: v["applied"] for k, v in report["config_changes"].items()}
     wanted = {k: v for k, v in PHOTOMETRIC_ONLY.items() if getattr(cfg, k) != v}
     assert changed == {**wanted, "pose_lr": 0.0}, changed
@@ -140,3 +144,17 @@ def test_the_log_names_scores_that_were_not_measured() -> None:
     assert line.startswith("PSNR 24.50 dB, colour-compensated 25.00 dB")
     measured = held_out_line(Metrics((), 24.5, 0.012, 0.011, 25.0, 24.8))
     assert "neighbours' exposure 24.80 dB" in measured and "depth MAE 0.0120 m" in measured
+
+
+def test_exposure_changes_are_measured_through_the_sparse_points(rgb_only: Capture) -> None:
+    """Constant exposure measures 0; one frame 25 % darker shows as a 25-33 % change (up and
+    back down) in every channel and is detected."""
+    constant = sparse_colour_changes(rgb_only.frames, rgb_only.sparse)
+    assert constant["pairs"] == len(rgb_only.frames) - 1 and constant["largest_change"] < 0.01
+    frames = list(rgb_only.frames)
+    darker = (frames[3].rgb.astype(np.float64) * 0.75).round().astype(np.uint8)
+    frames[3] = replace(frames[3], rgb=darker)
+    changed = sparse_colour_changes(frames, rgb_only.sparse)
+    assert changed["largest_change"] == pytest.approx(1 / 0.75 - 1, abs=0.03)
+    assert changed["largest_wb"] < 0.03
+    assert sparse_colour_changes(frames, None)["pairs"] == 0

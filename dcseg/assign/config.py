@@ -55,10 +55,11 @@ class AssignConfig:
             per-cluster signature as a look-alike confusion; its companion is then a class
             no object is named alone, and ``"alone"`` leaves its vote (at 0.15, 24 views,
             seeds 0/10, 3D labels / maps: heavy held-out 4 76.4 / 77.9 = off, ``"any"`` 60.2
-            / 63.5; default held-out 3 = off). Realistic: held-out 7 off 36.2 / 35.2,
-            ``"alone"`` 42.2 / 41.6, ``"any"`` 46.0 / 46.1; tuning 0 off 47.1 / 45.4,
-            ``"alone"`` 46.9 / 45.4, ``"any"`` 52.7 / 51.5 (its table is the only one:
-            ``results/confusion_gate.json``).
+            / 63.5; default held-out 3 / 4 = off, ``"any"`` -1.8 / -2.2, -13.8 / -14.8).
+            Realistic: held-out 7 off 36.2 / 35.2, ``"alone"`` 42.2 / 41.6, ``"any"`` 46.0 /
+            46.1; tuning 0 and 1 ``"alone"`` = off (47.1 / 45.4, 41.3 / 40.8), ``"any"`` 52.7
+            / 51.5, 49.1 / 48.5: their renamed objects' classes are named nowhere else
+            (``results/confusion_gate.json``).
         confusion_min_iou_ratio: ... its mean matched IoU is at least this times that of the
             voted class (the whole object renamed, not a neighbour's mask bleeding in).
         min_share_ratio: after voting, a Gaussian of a labelled cluster leaves the cluster

@@ -16,12 +16,13 @@ The argument is not symmetric by itself: a segmenter that confuses objects in so
 random (a ball named bowl in a third of its views, every ball alike) makes the right class
 look just as dependent, with a companion that is the confusion. Per cluster the two cannot
 be told apart: one companion, no other wrong names, whole-object masks, and shares that
-overlap (``benchmarks/confusion_gate_stats.py``: look-alike companions 0.17-0.38 of the views,
+overlap (``benchmarks/confusion_gate_stats.py``: look-alike companions 0.17-0.43 of the views,
 per-view noise 0.17-0.41). ``companion_alone`` (:func:`named_alone`) asks the same question of
 the companion: it is taken only when the scene names it alone for some other object; a
 companion that is itself only ever a minority name behaves like a confusion as much as the
-voted class does, and the vote stands. That keeps every relabel that random per-view noise
-made wrong out, and loses the relabels of an object whose true class no other object shows.
+voted class does, and the vote stands. On the measured layouts that kept out every relabel
+random per-view noise made wrong, and lost those of objects whose true class no other object
+shows (``benchmarks/results/confusion_gate.json``).
 """
 
 from __future__ import annotations

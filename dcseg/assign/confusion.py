@@ -15,7 +15,7 @@ an object named wrong in every view has no companion, and no vote can undo that
 The argument is not symmetric by itself: a segmenter that confuses objects in some views at
 random (a ball named bowl in a third of its views, every ball alike) makes the right class
 look just as dependent, with a companion that is the confusion. Per cluster the two cannot
-be told apart: one companion, no other wrong names, whole-object masks, and shares that
+be told apart: one companion, rarely a third name, whole-object masks, and shares that
 overlap (``benchmarks/confusion_gate_stats.py``: look-alike companions 0.17-0.43 of the views,
 per-view noise 0.17-0.41). ``companion_alone`` (:func:`named_alone`) asks the same question of
 the companion: it is taken only when the scene names it alone for some other object; a

@@ -11,6 +11,18 @@ its companions, not like a class of its own, and each of those clusters takes it
 A class that some cluster shows without a companion is a real class, and its clusters keep it;
 an object named wrong in every view has no companion, and no vote can undo that
 (``benchmarks/error_model_stats.py`` measures how many such objects a scene has).
+
+The argument is not symmetric by itself: a segmenter that confuses objects in some views at
+random (a ball named bowl in a third of its views, every ball alike) makes the right class
+look just as dependent, with a companion that is the confusion. Per cluster the two cannot
+be told apart: one companion, rarely a third name, whole-object masks, and shares that
+overlap (``benchmarks/confusion_gate_stats.py``: look-alike companions 0.17-0.43 of the views,
+per-view noise 0.17-0.41). ``companion_alone`` (:func:`named_alone`) asks the same question of
+the companion: it is taken only when the scene names it alone for some other object; a
+companion that is itself only ever a minority name behaves like a confusion as much as the
+voted class does, and the vote stands. On the measured layouts that kept out every relabel
+random per-view noise made wrong, and lost those of objects whose true class no other object
+shows (``benchmarks/results/confusion_gate.json``).
 """
 
 from __future__ import annotations
@@ -107,6 +119,29 @@ def dependent_classes(
     return dependent
 
 
+def named_alone(
+    labels: NDArray[np.integer[Any]],
+    companion: NDArray[np.integer[Any]],
+    counts: NDArray[np.integer[Any]],
+    min_tested: int,
+) -> NDArray[np.bool_]:
+    """``[C]`` bool: classes that some tested cluster is voted with no companion, i.e. that
+    the segmenter names alone for some object of the scene (tested as in
+    :func:`dependent_classes`).
+
+    Example:
+        >>> counts = np.array([[20, 5, 0], [0, 24, 0], [0, 4, 20]])
+        >>> named_alone(np.array([0, 1, 2]), np.array([1, -1, 1]), counts, 10).tolist()
+        [False, True, False]
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    n_classes = np.shape(counts)[1]
+    tested = (labels >= 0) & (np.asarray(counts).sum(axis=1) >= min_tested)
+    lone = np.bincount(labels[tested & (np.asarray(companion) < 0)], minlength=n_classes)
+    alone: NDArray[np.bool_] = lone > 0
+    return alone
+
+
 def undo_confusions(
     labels: NDArray[np.integer[Any]],
     counts: NDArray[np.integer[Any]],
@@ -114,8 +149,13 @@ def undo_confusions(
     min_share: float,
     min_views: int,
     min_iou_ratio: float,
+    companion_alone: bool = False,
 ) -> NDArray[np.int64]:
     """Clusters voted a class that behaves like a confusion take their companion class.
+
+    With ``companion_alone``, only a companion that the scene also names alone
+    (:func:`named_alone`) is taken: a companion that is itself only ever a minority name
+    behaves like a confusion as much as the voted class does, and the vote stands.
 
     See the module docstring; :func:`companions` and :func:`dependent_classes` (tested
     clusters: matched in at least ``ceil(min_views / min_share)`` views).
@@ -135,8 +175,11 @@ def undo_confusions(
     if np.shape(counts)[1] == 0:  # no vocabulary (a class-agnostic run): nothing voted
         return out
     companion = companions(out, counts, votes, min_share, min_views, min_iou_ratio)
-    dependent = dependent_classes(out, companion, counts, math.ceil(min_views / min_share))
+    min_tested = math.ceil(min_views / min_share)
+    dependent = dependent_classes(out, companion, counts, min_tested)
     flip = (out >= 0) & (companion >= 0) & dependent[np.maximum(out, 0)]
+    if companion_alone:
+        flip &= named_alone(out, companion, counts, min_tested)[np.maximum(companion, 0)]
     out[flip] = companion[flip]
     return out
 

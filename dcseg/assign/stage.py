@@ -135,6 +135,7 @@ def assign_labels(
         labels = undo_confusions(
             voted, counts, votes,
             cfg.confusion_min_share, cfg.confusion_min_views, cfg.confusion_min_iou_ratio,
+            cfg.confusion_companion == "alone",
         )  # fmt: skip
         won = votes[np.arange(len(labels)), np.maximum(labels, 0)]
         total = votes.sum(axis=1)

@@ -10,6 +10,7 @@ from dcseg.assign import AssignConfig, assign_labels
 from dcseg.assign.confusion import (
     companions,
     dependent_classes,
+    named_alone,
     unanimous_share,
     undo_confusions,
     view_counts,
@@ -97,8 +98,63 @@ def test_unanimous_share() -> None:
         {"confusion_min_share": 1.5},
         {"confusion_min_views": 0},
         {"confusion_min_iou_ratio": -1.0},
+        {"confusion_companion": "some"},
     ],
 )
-def test_config_rejects(field: dict[str, float]) -> None:
+def test_config_rejects(field: dict[str, object]) -> None:
     with pytest.raises(ValueError, match=next(iter(field))):
         AssignConfig(**field)  # type: ignore[arg-type]
+
+
+def test_companion_alone_keeps_a_minority_name_that_is_itself_a_confusion() -> None:
+    """Per-view noise: a ball named bowl in a third of its views, and no object named bowl
+    alone. Ungated, ball behaves like a confusion of bowl; gated, bowl does as much, and the
+    vote stands."""
+    counts = np.array([[16, 8, 0], [0, 0, 24]])  # classes: ball, bowl, table
+    labels = np.array([0, 2])
+    votes = counts * 0.6
+    assert undo_confusions(labels, counts, votes, 0.15, 2, 0.5).tolist() == [1, 2]
+    gated = undo_confusions(labels, counts, votes, 0.15, 2, 0.5, companion_alone=True)
+    assert gated.tolist() == [0, 2]
+
+
+def test_companion_alone_takes_a_companion_named_alone_elsewhere() -> None:
+    """A ball named globe in most views (class 2), another ball named ball in every view."""
+    counts = np.array([[4, 0, 19], [24, 0, 0]])
+    labels = np.array([2, 0])
+    votes = counts * 0.6
+    gated = undo_confusions(labels, counts, votes, 0.15, 2, 0.5, companion_alone=True)
+    assert gated.tolist() == [0, 0]
+
+
+def test_mutual_companions_stay() -> None:
+    """Ducks named teddy and teddies named duck in a third of their views: neither is named
+    alone, so neither gives way when gated."""
+    counts = np.array([[16, 8], [7, 17]])
+    labels = np.array([0, 1])
+    votes = counts * 0.6
+    assert undo_confusions(labels, counts, votes, 0.15, 2, 0.5).tolist() == [1, 0]
+    gated = undo_confusions(labels, counts, votes, 0.15, 2, 0.5, companion_alone=True)
+    assert gated.tolist() == [0, 1]
+
+
+def test_named_alone_counts_tested_clusters_only() -> None:
+    counts = np.array([[3, 0], [20, 5]])
+    assert named_alone(np.array([0, 0]), np.array([-1, 1]), counts, 10).tolist() == [False, False]
+
+
+def test_config_companion_alone_reaches_the_vote() -> None:
+    """Through the stage: the look-alike's companion (class 0) is named alone for the first
+    ball, so the gated step still relabels the second ball."""
+    cluster_maps, class_maps = lookalike_views(24, wrong_every=5)
+    cfg = AssignConfig(min_area=0, confusion_min_share=0.1, confusion_companion="alone")
+    assert assign_labels(cluster_maps, class_maps, 3, 3, cfg).labels.tolist() == [0, 0, 1]
+
+
+def test_config_companion_alone_leaves_a_companion_nobody_is_named() -> None:
+    """Only the second ball is in the scene: class 0 is named for no other object."""
+    cluster_maps, class_maps = lookalike_views(24, wrong_every=5)
+    cluster_maps = [np.where(ids == 0, -1, ids) for ids in cluster_maps]
+    for cfg_companion, expected in (("any", [-1, 0, 1]), ("alone", [-1, 2, 1])):
+        cfg = AssignConfig(min_area=0, confusion_min_share=0.1, confusion_companion=cfg_companion)
+        assert assign_labels(cluster_maps, class_maps, 3, 3, cfg).labels.tolist() == expected

@@ -139,12 +139,24 @@ def test_centre_depth_grad_window_takes_the_nearest_observed_depth() -> None:
     depth[2:5, 4:7] = 1.0  # an object whose silhouette is next to pixel (3, 3)
     depth[2, 3] = 0.0  # a dropped edge pixel: ignored
     means = torch.tensor([[-0.05, 0.05, 1.02]])  # on the object's edge, projects to (3, 3)
-    one = centre_depth_grad(means, _camera(), depth, band=1.5)
-    three = centre_depth_grad(means, _camera(), depth, band=1.5, window=3)
+    one = centre_depth_grad(means, _camera(), depth, band=1.5, behind=0.05)
+    three = centre_depth_grad(means, _camera(), depth, band=1.5, behind=0.05, window=3)
     assert torch.allclose(one, torch.tensor([[0.0, 0.0, -1.0]]))  # its pixel: the background
     assert torch.allclose(three, torch.tensor([[0.0, 0.0, 1.0]]))  # the window: the object
     with pytest.raises(ValueError, match="window"):
         centre_depth_grad(means, _camera(), depth, band=1.5, window=2)
+
+
+def test_centre_depth_grad_window_target_is_the_mean_of_the_nearest_surface() -> None:
+    depth = torch.full((6, 8), 3.0)  # a far wall
+    depth[1:6, 1:6] = torch.tensor([1.00, 1.01, 1.02, 1.03, 1.04]).repeat(5, 1)  # noisy near
+    z = torch.tensor([1.005, 1.025])
+    means = torch.stack([-0.05 * z, torch.zeros(2), z], 1)  # both project to pixel (3, 2)
+    grad = centre_depth_grad(means, _camera(), depth, band=0.5, behind=0.1, window=5)
+    # the window's near depths average 1.02 (the wall's 3.0 is another surface): the
+    # centre in front is pulled back, the one behind forward; nearest-depth targets would
+    # leave both where they are (1.00 / 1.02 and 1.03 are within 5 mm)
+    assert torch.allclose(grad, torch.tensor([[0.0, 0.0, -0.5], [0.0, 0.0, 0.5]]))
 
 
 def test_centre_depth_grad_defaults_are_the_pixel_and_a_symmetric_band() -> None:

@@ -191,7 +191,18 @@ class ReconstructConfig:
     the step's view, counting the centres within ``centre_band`` of it."""
 
     centre_band: float = option(4.0, bounds=(0.0, 100.0))
-    """The band of ``centre_weight``, in initial voxel sizes (see ``voxel_size``)."""
+    """The band of ``centre_weight``, in initial voxel sizes (see ``voxel_size``): how far in
+    front of the observed depth a centre is pulled onto it."""
+
+    centre_behind: float | None = option(None, bounds=(0.0, 100.0))
+    """How far behind the observed depth a centre is pulled onto it, in initial voxel sizes;
+    None = ``centre_band``. Narrower keeps the far side of a small object, hidden behind its
+    near side, where it is (:func:`dcseg.reconstruct.surface.centre_depth_grad`)."""
+
+    centre_window: int = option(1, bounds=(1, 15))
+    """Edge (odd, pixels) of the window around a centre's pixel whose valid observed depth
+    nearest the centre is its target; 1 = the pixel's. Wider keeps centres on silhouettes, whose
+    pixel sees the surface behind, on their object."""
 
     planar_depth: bool = False
     """Render depth (the depth loss and the held-out depth error) as each flat Gaussian's
@@ -297,6 +308,10 @@ class ReconstructConfig:
         for name in ("thickness_weight", "centre_weight", "centre_band"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.centre_behind is not None and not self.centre_behind >= 0:
+            raise ValueError(f"centre_behind must be >= 0, got {self.centre_behind}")
+        if self.centre_window < 1 or self.centre_window % 2 == 0:
+            raise ValueError(f"centre_window must be an odd number >= 1, got {self.centre_window}")
         if self.depth_filter_window < 1 or self.depth_filter_window % 2 == 0:
             raise ValueError(
                 f"depth_filter_window must be an odd number >= 1, got {self.depth_filter_window}"
@@ -378,8 +393,9 @@ distance to the true surfaces falls from 19.8 to 1.4 mm, held-out depth MAE from
 misses slanted surfaces (the floor at a grazing angle) more for thin wide discs than for blobs.
 Cost: 1.25x the reconstruction's wall time (interleaved A/B, benchmarks/README "Surfaces"). Off
 by default: on held-out segmentation layouts the 3D labels are 1.3-5.3 mIoU lower at every
-noise level; small objects keep 2-2.5x fewer Gaussians and lose most (benchmarks/README
-"Surface priors and segmentation")."""
+noise level; small objects lose most. The discs cost it, not the centre pull: without the pull
+(``centre_weight`` 0) heavy layout 4 labels as low (benchmarks/README "Surface priors and
+segmentation")."""
 
 REFINE_POSES: dict[str, str] = {"pose_refinement": "on"}
 """The override of ``--refine-poses``: poses are refined whatever the detection says (the same

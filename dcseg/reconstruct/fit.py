@@ -218,9 +218,17 @@ class _Trainer:
             log_scales = self.params["log_scales"]
             _add_grad(log_scales, cfg.thickness_weight * thickness_grad(log_scales))
         if cfg.centre_weight > 0:
-            band = cfg.centre_band * auto_voxel_size(self.extent, cfg)
-            means = self.params["means"]
-            _add_grad(means, cfg.centre_weight * centre_depth_grad(means, camera, view.depth, band))
+            voxel = auto_voxel_size(self.extent, cfg)
+            behind = None if cfg.centre_behind is None else cfg.centre_behind * voxel
+            grad = centre_depth_grad(
+                self.params["means"],
+                camera,
+                view.depth,
+                cfg.centre_band * voxel,
+                behind=behind,
+                window=cfg.centre_window,
+            )
+            _add_grad(self.params["means"], cfg.centre_weight * grad)
 
     def _accumulate(self, camera: Camera) -> None:
         means = self.params["means"]

@@ -66,22 +66,46 @@ def thickness_grad(log_scales: Tensor) -> Tensor:
     return grad
 
 
-def centre_depth_grad(means: Tensor, camera: Camera, depth: Tensor, band: float) -> Tensor:
+def centre_depth_grad(
+    means: Tensor,
+    camera: Camera,
+    depth: Tensor,
+    band: float,
+    *,
+    behind: float | None = None,
+    window: int = 1,
+) -> Tensor:
     """``[N, 3]`` gradient of the centre-depth term with respect to ``means``.
 
-    The term is the mean ``|z - depth|`` over the centres that project within ``band`` of the
-    observed depth (their view depth ``z``; the observed depth at their pixel); farther ones
-    belong to other surfaces (occluded here) and are not counted. Its gradient moves each
-    counted centre along the view axis by ``sign(z - depth) / count``; zero when none counts.
+    The term is the mean ``|z - target|`` over the centres near their target (their view
+    depth ``z``). ``target`` is the observed depth at their pixel; with ``window`` > 1 it is the
+    mean of the surface nearest ``z`` among the ``window`` x ``window`` pixels around it: of
+    their valid depths, those within ``behind`` of the one nearest ``z``. A centre counts when
+    it lies at most ``band`` in front of its target or at most ``behind`` behind it; farther
+    ones belong to other surfaces (occluded here) and are not counted. Its gradient moves each
+    counted centre along the view axis by ``sign(z - target) / count``; zero when none counts.
+
+    The window keeps a centre on an object's silhouette, whose pixel sees the surface behind,
+    on the object (the mean keeps the pull unbiased on noisy depth: the nearest single depth
+    would hold a centre anywhere within the noise); a narrow ``behind`` keeps the far side of
+    a small object, hidden behind its near side within ``band``, from being pulled onto it.
 
     Args:
         means: ``[N, 3]`` Gaussian centres (world).
         camera: the view's camera (its size is ``depth``'s).
         depth: ``[H, W]`` observed depth in metres, 0 = invalid.
-        band: the distance (metres) within which a centre counts.
+        band: the distance (metres) in front of the target within which a centre counts.
+        behind: the distance (metres) behind the target within which it counts, and the
+            depth spread of one surface in the window; None = ``band``.
+        window: odd edge (pixels) of the window searched for the target; 1 = the pixel.
     """
+    if window < 1 or window % 2 == 0:
+        raise ValueError(f"window must be an odd number >= 1, got {window}")
     view, intr = camera_arrays(camera, means.dtype)
-    signs, count = _centre_signs(to_numpy(means), view, intr, to_numpy(depth), band)
+    back = band if behind is None else behind
+    signs, count = _centre_signs(
+        to_numpy(means), view, intr, to_numpy(depth), band, back, window // 2
+    )
     if count == 0:
         return torch.zeros_like(means)
     axis = torch.as_tensor(view[2, :3] / count)
@@ -89,11 +113,14 @@ def centre_depth_grad(means: Tensor, camera: Camera, depth: Tensor, band: float)
 
 
 @numba.njit(cache=True, nogil=True)
-def _centre_signs(means: Any, view: Any, intr: Any, depth: Any, band: float) -> tuple[Any, int]:
-    """``sign(z - depth)`` per counted centre (0 elsewhere) and the number counted."""
+def _centre_signs(
+    means: Any, view: Any, intr: Any, depth: Any, band: float, behind: float, radius: int
+) -> tuple[Any, int]:
+    """``sign(z - target)`` per counted centre (0 elsewhere) and the number counted."""
     n, height, width = means.shape[0], depth.shape[0], depth.shape[1]
     signs = np.zeros(n)
     work = np.empty((1, 3))  # row P of the projection's scratch rows: the camera-frame centre
+    seen = np.empty((2 * radius + 1) ** 2)  # the window's valid depths
     count = 0
     for i in range(n):
         z = camera_point(means, i, view, work)
@@ -103,8 +130,29 @@ def _centre_signs(means: Any, view: Any, intr: Any, depth: Any, band: float) -> 
         v = np.rint(intr[1] * work[P, 1] / z + intr[3])
         if not (0 <= u < width and 0 <= v < height):  # also NaN
             continue
-        seen = depth[int(v), int(u)]
-        if seen > 0 and abs(z - seen) < band:
+        iu, iv = int(u), int(v)
+        k = 0
+        nearest = np.inf
+        for y in range(max(iv - radius, 0), min(iv + radius + 1, height)):
+            for x in range(max(iu - radius, 0), min(iu + radius + 1, width)):
+                d = depth[y, x]
+                if d > 0:
+                    seen[k] = d
+                    k += 1
+                    if abs(z - d) < abs(z - nearest):
+                        nearest = d
+        if k == 0:
+            continue
+        target = nearest
+        if radius > 0:  # the mean of the nearest surface's depths
+            total, m = 0.0, 0
+            for j in range(k):
+                if abs(seen[j] - nearest) <= behind:
+                    total += seen[j]
+                    m += 1
+            target = total / m
+        off = z - target
+        if -band < off < behind:
             count += 1
-            signs[i] = np.sign(z - seen)
+            signs[i] = np.sign(off)
     return signs, count

@@ -125,10 +125,55 @@ def test_centre_depth_grad_without_counted_centres_is_zero() -> None:
     assert grad.shape == (1, 3) and torch.all(grad == 0)
 
 
+def test_centre_depth_grad_behind_band_spares_the_far_side_of_an_object() -> None:
+    depth = torch.full((6, 8), 2.0)
+    means = torch.tensor([[0.0, 0.0, 2.03], [0.0, 0.0, 1.97], [0.0, 0.0, 2.005]])
+    grad = centre_depth_grad(means, _camera(), depth, band=0.1, behind=0.01)
+    # 3 cm behind the near surface (the far side of a small object): not counted; 3 cm in
+    # front and 5 mm behind: counted, pulled onto it
+    assert torch.allclose(grad, torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, -0.5], [0, 0, 0.5]]))
+
+
+def test_centre_depth_grad_window_takes_the_nearest_observed_depth() -> None:
+    depth = torch.full((6, 8), 2.0)  # the background
+    depth[2:5, 4:7] = 1.0  # an object whose silhouette is next to pixel (3, 3)
+    depth[2, 3] = 0.0  # a dropped edge pixel: ignored
+    means = torch.tensor([[-0.05, 0.05, 1.02]])  # on the object's edge, projects to (3, 3)
+    one = centre_depth_grad(means, _camera(), depth, band=1.5, behind=0.05)
+    three = centre_depth_grad(means, _camera(), depth, band=1.5, behind=0.05, window=3)
+    assert torch.allclose(one, torch.tensor([[0.0, 0.0, -1.0]]))  # its pixel: the background
+    assert torch.allclose(three, torch.tensor([[0.0, 0.0, 1.0]]))  # the window: the object
+    with pytest.raises(ValueError, match="window"):
+        centre_depth_grad(means, _camera(), depth, band=1.5, window=2)
+
+
+def test_centre_depth_grad_window_target_is_the_mean_of_the_nearest_surface() -> None:
+    depth = torch.full((6, 8), 3.0)  # a far wall
+    depth[1:6, 1:6] = torch.tensor([1.00, 1.01, 1.02, 1.03, 1.04]).repeat(5, 1)  # noisy near
+    z = torch.tensor([1.005, 1.025])
+    means = torch.stack([-0.05 * z, torch.zeros(2), z], 1)  # both project to pixel (3, 2)
+    grad = centre_depth_grad(means, _camera(), depth, band=0.5, behind=0.1, window=5)
+    # the window's near depths average 1.02 (the wall's 3.0 is another surface): the
+    # centre in front is pulled back, the one behind forward; nearest-depth targets would
+    # leave both where they are (1.00 / 1.02 and 1.03 are within 5 mm)
+    assert torch.allclose(grad, torch.tensor([[0.0, 0.0, -0.5], [0.0, 0.0, 0.5]]))
+
+
+def test_centre_depth_grad_defaults_are_the_pixel_and_a_symmetric_band() -> None:
+    camera = _turned_camera()
+    gen = torch.Generator().manual_seed(1)
+    depth = 1.5 + torch.rand(6, 8, generator=gen)
+    means = camera.c2w[:3, 3] + torch.randn(300, 3, generator=gen) + camera.c2w[:3, 2] * 2.0
+    base = centre_depth_grad(means, camera, depth, band=0.3)
+    same = centre_depth_grad(means, camera, depth, band=0.3, behind=0.3, window=1)
+    assert torch.equal(base, same) and bool((base != 0).any())
+
+
 @pytest.mark.parametrize(
     "field, value",
     [("init_thickness", 0.0), ("init_thickness", 1.5), ("thickness_weight", -1.0),
-     ("centre_weight", -0.1), ("centre_band", -1.0)],
+     ("centre_weight", -0.1), ("centre_band", -1.0), ("centre_behind", -1.0),
+     ("centre_window", 2), ("centre_window", 0)],
 )  # fmt: skip
 def test_config_rejects_bad_surface_values(field: str, value: float) -> None:
     with pytest.raises(ValueError, match=field):

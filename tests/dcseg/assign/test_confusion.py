@@ -7,6 +7,7 @@ import pytest
 from numpy.typing import NDArray
 
 from dcseg.assign import AssignConfig, assign_labels
+from dcseg.assign.config import Companions
 from dcseg.assign.confusion import (
     companions,
     dependent_classes,
@@ -155,6 +156,7 @@ def test_config_companion_alone_leaves_a_companion_nobody_is_named() -> None:
     """Only the second ball is in the scene: class 0 is named for no other object."""
     cluster_maps, class_maps = lookalike_views(24, wrong_every=5)
     cluster_maps = [np.where(ids == 0, -1, ids) for ids in cluster_maps]
-    for cfg_companion, expected in (("any", [-1, 0, 1]), ("alone", [-1, 2, 1])):
+    cases: tuple[tuple[Companions, list[int]], ...] = (("any", [-1, 0, 1]), ("alone", [-1, 2, 1]))
+    for cfg_companion, expected in cases:
         cfg = AssignConfig(min_area=0, confusion_min_share=0.1, confusion_companion=cfg_companion)
         assert assign_labels(cluster_maps, class_maps, 3, 3, cfg).labels.tolist() == expected

@@ -86,7 +86,10 @@ def tilted_wall(degrees: float, noise: float, seed: int) -> NDArray[np.float32]:
     theta = np.radians(degrees)
     depth = 2.0 / (np.cos(theta) - np.sin(theta) * yn)
     rng = np.random.default_rng(seed)
-    return (depth + rng.normal(0.0, noise, depth.shape) * depth**2).astype(np.float32)
+    noisy: NDArray[np.float32] = (depth + rng.normal(0.0, noise, depth.shape) * depth**2).astype(
+        np.float32
+    )
+    return noisy
 
 
 def test_a_rotation_hidden_in_heavy_noise_shows_as_tilt() -> None:

@@ -111,12 +111,18 @@ def dependent_classes(
         [True, False]
     """
     labels = np.asarray(labels, dtype=np.int64)
-    n_classes = np.shape(counts)[1]
-    tested = (labels >= 0) & (np.asarray(counts).sum(axis=1) >= min_tested)
-    voted = np.bincount(labels[tested], minlength=n_classes)
-    lone = np.bincount(labels[tested & (np.asarray(companion) < 0)], minlength=n_classes)
-    dependent: NDArray[np.bool_] = (voted > 0) & (lone == 0)
+    tested = _tested(labels, counts, min_tested)
+    voted = np.bincount(labels[tested], minlength=np.shape(counts)[1])
+    dependent: NDArray[np.bool_] = (voted > 0) & ~named_alone(labels, companion, counts, min_tested)
     return dependent
+
+
+def _tested(
+    labels: NDArray[np.integer[Any]], counts: NDArray[np.integer[Any]], min_tested: int
+) -> NDArray[np.bool_]:
+    """``[K]`` bool: labelled clusters matched in at least ``min_tested`` views."""
+    tested: NDArray[np.bool_] = (labels >= 0) & (np.asarray(counts).sum(axis=1) >= min_tested)
+    return tested
 
 
 def named_alone(
@@ -135,10 +141,8 @@ def named_alone(
         [False, True, False]
     """
     labels = np.asarray(labels, dtype=np.int64)
-    n_classes = np.shape(counts)[1]
-    tested = (labels >= 0) & (np.asarray(counts).sum(axis=1) >= min_tested)
-    lone = np.bincount(labels[tested & (np.asarray(companion) < 0)], minlength=n_classes)
-    alone: NDArray[np.bool_] = lone > 0
+    lone = _tested(labels, counts, min_tested) & (np.asarray(companion) < 0)
+    alone: NDArray[np.bool_] = np.bincount(labels[lone], minlength=np.shape(counts)[1]) > 0
     return alone
 
 

@@ -393,9 +393,9 @@ distance to the true surfaces falls from 19.8 to 1.4 mm, held-out depth MAE from
 misses slanted surfaces (the floor at a grazing angle) more for thin wide discs than for blobs.
 Cost: 1.25x the reconstruction's wall time (interleaved A/B, benchmarks/README "Surfaces"). Off
 by default: on held-out segmentation layouts the 3D labels are 1.3-5.3 mIoU lower at every
-noise level; small objects lose most. The discs cost it, not the centre pull: without the pull
-(``centre_weight`` 0) heavy layout 4 labels as low (benchmarks/README "Surface priors and
-segmentation")."""
+noise level; small objects lose most. Told apart on heavy layout 4: the disc shape alone keeps
+the labels; ``planar_depth`` and the centre pull on discs cost them (benchmarks/README "Surface
+priors and segmentation", ``results/surface_components.json``)."""
 
 REFINE_POSES: dict[str, str] = {"pose_refinement": "on"}
 """The override of ``--refine-poses``: poses are refined whatever the detection says (the same

@@ -108,6 +108,12 @@ def colour_changes(frames: Sequence[Frame]) -> dict[str, Any]:
     spread = np.linspace(0, n - 1, MAX_PAIRS).round()
     starts = list(range(n)) if n <= MAX_PAIRS else sorted({int(i) for i in spread})
     ratios = [r for i in starts if (r := pair_change(frames[i], frames[i + 1])) is not None]
+    return changes_summary(ratios)
+
+
+def changes_summary(ratios: Sequence[NDArray[np.float64]]) -> dict[str, Any]:
+    """The measured pairs' per-channel log ratios summarised: their count, the largest and
+    median change (any channel, as a fraction) and the largest white-balance change."""
     if not ratios:
         return {"pairs": 0, "largest_change": None, "median_change": None, "largest_wb": None}
     logs = np.array(ratios)

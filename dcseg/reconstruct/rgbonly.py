@@ -143,17 +143,8 @@ def sparse_colour_changes(frames: Sequence[Frame], sparse: SparsePoints | None) 
     logs = [
         b - a for a, b in zip(gains[:-1], gains[1:], strict=True) if a is not None and b is not None
     ]
-    if not logs:
-        return {"pairs": 0, "largest_change": None, "median_change": None, "largest_wb": None}
-    per_pair = np.abs(np.array(logs)).max(axis=1)
-    wb = np.array(logs).max(axis=1) - np.array(logs).min(axis=1)
-    return {
-        "pairs": len(logs),
-        "largest_change": float(np.expm1(per_pair.max())),
-        "median_change": float(np.expm1(np.median(per_pair))),
-        "largest_wb": float(np.expm1(wb.max())),
-        "measured_by": "sparse points",
-    }
+    summary = colour.changes_summary(logs)
+    return {**summary, "measured_by": "sparse points"} if logs else summary
 
 
 def _frame_gain(frame: Frame, sparse: SparsePoints) -> NDArray[np.float64] | None:

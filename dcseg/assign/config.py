@@ -93,6 +93,11 @@ class AssignConfig:
             own class: on heavy layout 0 two lego clusters (21 and 28 Gaussians, ratio
             0.04-0.05) were the only lego found, and relabelling them cost 4.7 mIoU. The
             wrong votes were surface patches spanning 1-2.5 m (223-1316 Gaussians).
+        support_min_iou: ... and also smaller clusters whose matched views' mean IoU (summed
+            IoU votes / views matched) is below this; 0 = none. A surface fragment that
+            overlaps a small object's bleeding class mask in a few views wins the object's
+            class with IoU 0.06-0.18 per view (detector layout 8: tray fragments voted
+            ``domino``), where a rare object's own clusters matched at 0.25-0.56.
         regroup_min_gaussians: Gaussians that the consistency step takes out of one cluster
             and that touch each other (contact radius, ``contact_factor``) form groups; a
             group of at least this many becomes a cluster of the class its pooled evidence
@@ -262,6 +267,7 @@ class AssignConfig:
     min_share_ratio: float = 0.5
     min_cluster_support: float = 0.1
     support_min_extent: float = 0.5
+    support_min_iou: float = 0.0
     regroup_min_gaussians: int = 50
     objects: bool = True
     contact_factor: float = 6.0
@@ -337,6 +343,8 @@ class AssignConfig:
             raise ValueError(f"min_share_ratio must be in [0, 1], got {self.min_share_ratio}")
         if not self.support_min_extent >= 0.0:
             raise ValueError(f"support_min_extent must be >= 0, got {self.support_min_extent}")
+        if not 0.0 <= self.support_min_iou <= 1.0:
+            raise ValueError(f"support_min_iou must be in [0, 1], got {self.support_min_iou}")
         if not 0.0 <= self.min_cluster_support <= 1.0:
             raise ValueError(
                 f"min_cluster_support must be in [0, 1], got {self.min_cluster_support}"

@@ -55,8 +55,11 @@ def supported_votes(
     a = assignment
     pooled = pooled_evidence(clustering.labels, evidence, len(a.labels))
     weak = unsupported(pooled, a.labels, cfg.min_cluster_support)
+    per_view = np.divide(a.votes.sum(axis=1), a.n_views, out=np.zeros(len(a.labels)),
+                         where=a.n_views > 0)  # fmt: skip
     for k in np.flatnonzero(weak):
-        weak[k] = spread(means[clustering.labels == k]) >= cfg.support_min_extent
+        small_weak = per_view[k] < cfg.support_min_iou
+        weak[k] = small_weak or spread(means[clustering.labels == k]) >= cfg.support_min_extent
     if not weak.any():
         return a, 0
     labels = a.labels.copy()

@@ -75,6 +75,28 @@ def test_votes_stand_when_off_or_for_clusters_smaller_than_the_extent(cfg: Assig
     assert replaced == 0 and out is voted
 
 
+def test_small_clusters_weakly_matched_take_their_supported_class() -> None:
+    """Cluster 0 is small (extent 7) but matched at a mean IoU of 0.8 / 2 views = 0.4;
+    ``support_min_iou`` above that counts its vote as weak anyway, below it the vote stands.
+    Cluster 1 (supported) keeps its vote whatever its IoU."""
+    voted = assignment([1, 1], [[0.2, 0.6], [0.0, 0.2]])
+    small = replace(SUPPORT, support_min_extent=7.0)
+    out, replaced = supported_votes(
+        evidence(split=8), clustering(), voted, MEANS, replace(small, support_min_iou=0.5)
+    )
+    assert replaced == 1 and out.labels.tolist() == [0, 1]
+    kept, replaced = supported_votes(
+        evidence(split=8), clustering(), voted, MEANS, replace(small, support_min_iou=0.3)
+    )
+    assert replaced == 0 and kept is voted
+
+
+@pytest.mark.parametrize("value", [-0.1, 1.5, float("nan")])
+def test_support_min_iou_out_of_range_is_refused(value: float) -> None:
+    with pytest.raises(ValueError, match="support_min_iou"):
+        AssignConfig(support_min_iou=value)
+
+
 def test_trusted_settings_replace_the_usual_ones_when_the_masks_agree() -> None:
     cfg = AssignConfig(
         trust_agreement=0.9, trusted_share_ratio=0.8, trusted_evidence_weight=5.0,

@@ -50,8 +50,9 @@ def supported_votes(
     (:func:`~dcseg.assign.consistency.unsupported`, ``cfg.min_cluster_support``)
     replaced by the class that evidence supports most, for clusters that span at least
     ``cfg.support_min_extent`` (:func:`~dcseg.assign.consistency.spread` of their
-    ``means``); its score becomes that class's share of the cluster's summed IoU votes (often
-    0: the masks' vote never reached it). Also returns how many votes were replaced."""
+    ``means``) or whose matched views' mean IoU is below ``cfg.support_min_iou``; its score
+    becomes that class's share of the cluster's summed IoU votes (often 0: the masks' vote
+    never reached it). Also returns how many votes were replaced."""
     a = assignment
     pooled = pooled_evidence(clustering.labels, evidence, len(a.labels))
     weak = unsupported(pooled, a.labels, cfg.min_cluster_support)

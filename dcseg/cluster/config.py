@@ -73,8 +73,10 @@ class ClusterConfig:
             is below this join the second pass too, and move to a new centre they are more
             similar to (None = only the unassigned; opt-in). Small objects whose features lie
             near a neighbour's centre are otherwise claimed by it: on the surface-prior
-            reconstruction (discs + centre pull, heavy layout 4) a lego brick at cosine ~0.5
-            to its tray lost its cluster (IoU 79 -> 12); measured in benchmarks/README.md.
+            reconstruction (discs + centre pull, heavy layout 4, seeds 0/10) a lego brick at
+            cosine ~0.5 to its tray lost its cluster (IoU 79 -> 12); 0.6 gives 3D labels /
+            maps 68.5 / 67.1 -> 71.4 / 70.0 there and leaves the default reconstruction's
+            76.4 / 77.9 at 76.5 / 78.0 (``benchmarks/results/surface_refit.json``).
         remove_outliers: run the 3D connected-component outlier removal (Part B.6).
         outlier_radius: radius (world units) of the per-cluster radius graph; None = adaptive,
             ``radius_factor`` x the median nearest-neighbour spacing of all Gaussian centres.

@@ -69,14 +69,6 @@ class ClusterConfig:
             their own in the first pass and end up as noise; measured on the 40-view clean
             synthetic scene: lego and domino IoU 0 -> 81 and 100 (with the smaller 2D filter
             of :class:`~dcseg.segment.MaskConfig`), projection mIoU 70.8 -> 89.6.
-        refit_similarity: with ``refit_unassigned``, Gaussians whose first-pass similarity
-            is below this join the second pass too, and move to a new centre they are more
-            similar to (None = only the unassigned; opt-in). Small objects whose features lie
-            near a neighbour's centre are otherwise claimed by it: on the surface-prior
-            reconstruction (discs + centre pull, heavy layout 4, seeds 0/10) a lego brick at
-            cosine ~0.5 to its tray lost its cluster (IoU 79 -> 12); 0.6 gives 3D labels /
-            maps 68.5 / 67.1 -> 71.4 / 70.0 there and leaves the default reconstruction's
-            76.4 / 77.9 at 76.5 / 78.0 (``benchmarks/results/surface_refit.json``).
         remove_outliers: run the 3D connected-component outlier removal (Part B.6).
         outlier_radius: radius (world units) of the per-cluster radius graph; None = adaptive,
             ``radius_factor`` x the median nearest-neighbour spacing of all Gaussian centres.
@@ -97,7 +89,6 @@ class ClusterConfig:
     cluster_selection_epsilon: float = 0.01
     min_similarity: float = 0.5
     refit_unassigned: bool = True
-    refit_similarity: float | None = None
     remove_outliers: bool = True
     outlier_radius: float | None = None
     radius_factor: float = 20.0
@@ -124,8 +115,6 @@ class ClusterConfig:
             raise ValueError(
                 f"cluster_selection_epsilon must be >= 0, got {self.cluster_selection_epsilon}"
             )
-        if self.refit_similarity is not None and not -1.0 <= self.refit_similarity <= 1.0:
-            raise ValueError(f"refit_similarity must be in [-1, 1], got {self.refit_similarity}")
         if not -1.0 <= self.min_similarity <= 1.0:
             raise ValueError(f"min_similarity must be in [-1, 1], got {self.min_similarity}")
         if self.outlier_radius is not None and self.outlier_radius <= 0:

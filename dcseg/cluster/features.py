@@ -107,26 +107,16 @@ def refit_unassigned(
     them alone (the same sampling rule and HDBSCAN settings) finds those objects; the new
     centres are appended after the first pass's and only unassigned Gaussians can join them.
 
-    With ``cfg.refit_similarity``, Gaussians claimed less similarly than that join the second
-    pass too: a small object whose features lie near a neighbour's centre (a lego brick at
-    cosine ~0.5 to the tray it stands on) is claimed by it in the first pass, not found again.
-    Such a Gaussian moves to a new centre only when it is more similar to it than to its
-    first one; otherwise it keeps its first label.
-
     Returns:
         Updated ``labels [N]``, ``scores [N]`` and ``centers [K + K2, D]`` (new arrays).
     """
-    weak = labels < 0
-    if cfg.refit_similarity is not None:
-        weak |= scores < cfg.refit_similarity
-    pool = np.flatnonzero(weak)
+    pool = np.flatnonzero(labels < 0)
     extra = fit_clusters(x[pool], cfg, clusterer=clusterer)
     if extra.shape[0] == 0:
         return labels, scores, centers
     sub_labels, sub_scores = assign_to_centers(x[pool], extra, cfg.min_similarity)
-    better = (sub_labels >= 0) & ((labels[pool] < 0) | (sub_scores > scores[pool]))
     labels, scores = labels.copy(), scores.copy()
-    labels[pool] = np.where(better, sub_labels + len(centers), labels[pool])
+    labels[pool] = np.where(sub_labels >= 0, sub_labels + len(centers), -1)
     scores[pool] = np.maximum(scores[pool], sub_scores)
     return labels, scores, np.concatenate([centers, extra]).astype(np.float32)
 

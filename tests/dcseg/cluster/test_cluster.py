@@ -122,30 +122,6 @@ def test_second_pass_finds_objects_the_sample_missed() -> None:
     assert np.all(second.scores[-24:] > 0.9)
 
 
-def test_refit_similarity_frees_small_objects_a_neighbour_claimed() -> None:
-    """Two 12-Gaussian objects at cosine ~0.6 to a big blob's centre: the first pass gives them
-    to it (0.6 >= min_similarity); with refit_similarity 0.8 the second pass finds them."""
-    feats, xyz, truth = blobs(n=20_000, k=4, seed=1)
-    rng = np.random.default_rng(2)
-    centre = feats[truth == 0].mean(0)
-    centre /= np.linalg.norm(centre)
-    basis = np.linalg.qr(np.concatenate([feats[truth == i].mean(0)[None] for i in range(4)]
-                                        + [rng.standard_normal((2, 16))]).T)[0]  # fmt: skip
-    directions = 0.6 * centre + 0.8 * basis[:, 4:6].T
-    small = np.repeat(directions, 12, axis=0) + 0.02 * rng.standard_normal((24, 16))
-    small /= np.linalg.norm(small, axis=1, keepdims=True)
-    feats = np.concatenate([feats, small.astype(np.float32)])
-    xyz = np.concatenate([xyz, 20.0 + np.repeat(np.eye(3)[:2], 12, 0) + 0.1 * rng.random((24, 3))])
-    cfg = ClusterConfig(min_sample_size=1000, max_sample_size=1000)
-    first = cluster_features(feats, xyz, None, cfg)
-    assert first.n_clusters == 4
-    second = cluster_features(feats, xyz, None, replace(cfg, refit_similarity=0.8))
-    assert second.n_clusters == 6
-    np.testing.assert_array_equal(second.labels[:-24], first.labels[:-24])
-    assert len(set(second.labels[-24:-12].tolist())) == 1 == len(set(second.labels[-12:]))
-    assert set(second.labels[-24:].tolist()) == {4, 5}
-
-
 def test_remove_outliers_by_size_and_weight_share() -> None:
     # cluster 0: main body of 50 + far piece of 5 (too small); cluster 1: 40 + 20 far away
     pos = np.concatenate([line(50, 0.0), line(5, 100.0), line(40, 200.0), line(20, 300.0)])

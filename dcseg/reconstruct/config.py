@@ -199,6 +199,11 @@ class ReconstructConfig:
     None = ``centre_band``. Narrower keeps the far side of a small object, hidden behind its
     near side, where it is (:func:`dcseg.reconstruct.surface.centre_depth_grad`)."""
 
+    centre_from: int = option(0, bounds=(0, 1000000))
+    """First iteration of the ``centre_weight`` pull. From ``densify_until`` on, the pull only
+    moves the Gaussians densification made; earlier, it also decides which ones are made and
+    kept (on discs it halves the opaque Gaussians of small objects)."""
+
     centre_window: int = option(1, bounds=(1, 15))
     """Edge (odd, pixels) of the window around a centre's pixel whose valid observed depth
     nearest the centre is its target; 1 = the pixel's. Wider keeps centres on silhouettes, whose
@@ -305,7 +310,7 @@ class ReconstructConfig:
             raise ValueError(f"ssim_lambda must be in [0, 1], got {self.ssim_lambda}")
         if self.init_thickness is not None and not 0.0 < self.init_thickness <= 1.0:
             raise ValueError(f"init_thickness must be in (0, 1], got {self.init_thickness}")
-        for name in ("thickness_weight", "centre_weight", "centre_band"):
+        for name in ("thickness_weight", "centre_weight", "centre_band", "centre_from"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.centre_behind is not None and not self.centre_behind >= 0:

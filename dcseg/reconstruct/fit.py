@@ -199,7 +199,7 @@ class _Trainer:
         torch.autograd.backward(loss)
         if it < cfg.densify_until:
             self._accumulate(camera)
-        self._surface_priors(view, camera)  # after _accumulate: densification sees the image
+        self._surface_priors(view, camera, it)  # after _accumulate: densification sees the image
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
         if poses is not None:
@@ -210,14 +210,15 @@ class _Trainer:
         self._control(it + 1)
         return float(loss.detach())
 
-    def _surface_priors(self, view: View, camera: Camera) -> None:
-        """Add the gradients of the thickness and centre-depth terms (not in the step loss);
-        ``camera`` is the view's camera at its refined pose."""
+    def _surface_priors(self, view: View, camera: Camera, it: int) -> None:
+        """Add the gradients of the thickness and centre-depth terms (not in the step loss;
+        the latter from ``centre_from`` on); ``camera`` is the view's camera at its refined
+        pose."""
         cfg = self.cfg
         if cfg.thickness_weight > 0:
             log_scales = self.params["log_scales"]
             _add_grad(log_scales, cfg.thickness_weight * thickness_grad(log_scales))
-        if cfg.centre_weight > 0:
+        if cfg.centre_weight > 0 and it >= cfg.centre_from:
             voxel = auto_voxel_size(self.extent, cfg)
             behind = None if cfg.centre_behind is None else cfg.centre_behind * voxel
             grad = centre_depth_grad(

@@ -173,7 +173,7 @@ def test_centre_depth_grad_defaults_are_the_pixel_and_a_symmetric_band() -> None
     "field, value",
     [("init_thickness", 0.0), ("init_thickness", 1.5), ("thickness_weight", -1.0),
      ("centre_weight", -0.1), ("centre_band", -1.0), ("centre_behind", -1.0),
-     ("centre_window", 2), ("centre_window", 0)],
+     ("centre_window", 2), ("centre_window", 0), ("centre_from", -1)],
 )  # fmt: skip
 def test_config_rejects_bad_surface_values(field: str, value: float) -> None:
     with pytest.raises(ValueError, match=field):
@@ -218,6 +218,18 @@ def test_surface_priors_pull_centres_onto_the_surfaces_and_flatten_them() -> Non
     assert priors[0] < 0.5 * plain[0], (priors, plain)
     assert priors[1] < 0.2 * plain[1], (priors, plain)
     assert math.isfinite(priors[0])
+
+
+def test_centre_pull_starts_at_centre_from() -> None:
+    """No pull before ``centre_from``: starting it after the last step is no pull at all;
+    starting it halfway pulls less than from the start."""
+    discs = replace(SMALL, **{**PRIORS, "centre_weight": 0.0})
+    off = _fitted_from_displaced(replace(SMALL, **PRIORS, centre_from=SMALL.iterations))
+    assert torch.equal(off.means, _fitted_from_displaced(discs).means)
+    start = _fit_from_displaced(replace(SMALL, **PRIORS))[0]
+    half = _fit_from_displaced(replace(SMALL, **PRIORS, centre_from=SMALL.iterations // 2))[0]
+    none = _fit_from_displaced(discs)[0]
+    assert start < half < none, (start, half, none)
 
 
 def test_planar_depth_of_flat_gaussians_follows_the_slanted_floor() -> None:

@@ -55,6 +55,7 @@ from dcseg.io.run_state import ViewState  # noqa: E402
 from dcseg.jobs import RunInputs, run_job  # noqa: E402
 from dcseg.pipeline import segment_scene  # noqa: E402
 from dcseg.segment import class_evidence, vote_3d  # noqa: E402
+from dcseg.segmentation import Labels, Segmentation  # noqa: E402
 from dcseg.synth import SynthConfig  # noqa: E402
 from dcseg.types import GroundTruth  # noqa: E402
 
@@ -186,12 +187,30 @@ class Scorer:
         }
 
 
+def class_maps(saved: SavedRun) -> tuple[list[ViewState], list[NDArray[Any]]]:
+    """The views that have a class map, and their class maps."""
+    seen = [v for v in saved.trained.views if v.name in saved.semantic]
+    return seen, [saved.semantic[v.name].classes for v in seen]
+
+
+def vote3d(
+    saved: SavedRun, seen: Sequence[ViewState], maps: Sequence[NDArray[Any]]
+) -> NDArray[Any]:
+    """The training-free 3D vote's class per Gaussian (:func:`dcseg.segment.vote_3d`)."""
+    n, c = len(saved.trained.gaussians.means), len(saved.vocabulary)
+    return vote_3d(class_evidence([v.blend for v in seen], maps, n, c))
+
+
+def exported_labels(saved: SavedRun, seg: Segmentation, out: Path) -> Labels:
+    """Write ``seg``'s outputs into ``out`` and read their labels back (what users download)."""
+    write_outputs(out, saved.trained, seg, saved.vocabulary, [])
+    return load_labels(out, [v.name for v in saved.trained.views])
+
+
 def baselines(saved: SavedRun, scorer: Scorer, cfg: PipelineConfig) -> dict[str, Any]:
     """Naive 2D fusion and the training-free 3D vote on one run, by both protocols."""
-    seen = [v for v in saved.trained.views if v.name in saved.semantic]
-    maps = [saved.semantic[v.name].classes for v in seen]
-    n, c = len(saved.trained.gaussians.means), len(saved.vocabulary)
-    vote = vote_3d(class_evidence([v.blend for v in seen], maps, n, c))
+    seen, maps = class_maps(saved)
+    vote = vote3d(saved, seen, maps)
     groups = torch.from_numpy(vote)
     rendered = [v.blend.dominant_group(groups, cfg.masks.min_weight).numpy() for v in seen]
     return {
@@ -240,9 +259,8 @@ def score_segmentation(
     seg = segment_scene(saved.trained, saved.semantic, len(names), cfg, class_names=names)
     seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
     out = Path(tempfile.mkdtemp(dir=tmp))
-    write_outputs(out, saved.trained, seg, saved.vocabulary, [])
+    labels = exported_labels(saved, seg, out)
     views = saved.trained.views
-    labels = load_labels(out, [v.name for v in views])
     vertex = PlyData.read(str(out / "scene_labelled.ply"))["vertex"]
     instance_ids = np.asarray(vertex["instance_id"], dtype=np.int64)
     n_written = len(json.loads((out / "instances.json").read_text())["instances"])

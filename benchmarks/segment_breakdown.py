@@ -23,12 +23,18 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmarks.bench_segment import Scorer, current_config, run_dir
+from benchmarks.bench_segment import (
+    Scorer,
+    class_maps,
+    current_config,
+    exported_labels,
+    run_dir,
+    vote3d,
+)
 from dcseg.evaluate import EvaluateConfig, evaluate_scenes
 from dcseg.io.ground_truth import read_ground_truth
-from dcseg.io.run_output import SavedRun, load_labels, load_run, write_outputs
+from dcseg.io.run_output import SavedRun, load_run
 from dcseg.pipeline import segment_scene
-from dcseg.segment import class_evidence, vote_3d
 from dcseg.types import GroundTruth
 
 Predictions = dict[str, NDArray[np.int64]]
@@ -39,18 +45,14 @@ def predictions(saved: SavedRun, gt: GroundTruth, seed: int, sets: Sequence[str]
     """Naive fusion, the 3D vote and dcseg's labels on the ground-truth points."""
     cfg = current_config(saved, seed, sets)
     scorer = Scorer(saved, gt, cfg.evaluate.depth_tol)
-    seen = [v for v in saved.trained.views if v.name in saved.semantic]
-    maps = [saved.semantic[v.name].classes for v in seen]
+    seen, maps = class_maps(saved)
     names = saved.vocabulary.names
-    n = len(saved.trained.gaussians.means)
-    vote = vote_3d(class_evidence([v.blend for v in seen], maps, n, len(names)))
     seg = segment_scene(saved.trained, saved.semantic, len(names), cfg, class_names=names)
     with tempfile.TemporaryDirectory() as tmp:
-        write_outputs(Path(tmp), saved.trained, seg, saved.vocabulary, [])
-        labels = load_labels(Path(tmp), [v.name for v in saved.trained.views])
+        labels = exported_labels(saved, seg, Path(tmp))
     return {
         "naive": scorer.projection(maps, seen),
-        "vote3d": scorer.nearest(vote),
+        "vote3d": scorer.nearest(vote3d(saved, seen, maps)),
         "dcseg": scorer.nearest(labels.semantic_ids),
     }
 

@@ -5,6 +5,7 @@ This module must never import torch: the HTTP service imports it to describe job
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
@@ -45,6 +46,9 @@ class CaptureOptions:
         depth_trunc: depth beyond this many metres is set to 0 (invalid). None = keep all.
         intrinsics: ``(fx, fy, cx, cy)`` at the native colour resolution, for layouts that do
             not store intrinsics (7-Scenes, Replica without ``cam_params.json``).
+        distortion: the lens distortion of ``intrinsics``, OpenCV's ``k1 k2 p1 p2 [k3 [k4 k5
+            k6]]`` (4, 5 or 8 numbers; e.g. TUM freiburg1's ``d0..d4``): the frames, and masks
+            given for them, are undistorted when read (:mod:`dcseg.lens`). None = pinhole.
         min_confidence: for layouts that store an ARKit depth confidence per pixel (Record3D,
             Polycam; levels 0 = low, 1 = medium, 2 = high), depth whose confidence is below this
             level is set to 0 (invalid). 0 = keep all depth (confidence files are not read).
@@ -72,6 +76,12 @@ class CaptureOptions:
     )
     intrinsics: tuple[float, float, float, float] | None = option(
         None, help="(fx, fy, cx, cy) for layouts that store none", flag="--intrinsics"
+    )
+    distortion: tuple[float, ...] | None = option(
+        None,
+        help="lens distortion of the intrinsics option, OpenCV's k1,k2,p1,p2[,k3[,k4,k5,k6]]: "
+        "frames and masks are undistorted when read (default: none)",
+        flag="--distortion",
     )
     min_confidence: int = option(
         0,
@@ -112,6 +122,19 @@ class CaptureOptions:
             raise ValueError(f"sync_tolerance_ms must be > 0, got {self.sync_tolerance_ms}")
         if self.pose_scale is not None and not 0 < self.pose_scale <= 1e6:
             raise ValueError(f"pose_scale must be in (0, 1e6], got {self.pose_scale}")
+        if self.distortion is not None:
+            self._check_distortion(self.distortion)
+
+    def _check_distortion(self, distortion: tuple[float, ...]) -> None:
+        if self.intrinsics is None:
+            raise ValueError("distortion is the lens of intrinsics: give intrinsics too")
+        if len(distortion) not in (4, 5, 8):
+            raise ValueError(
+                f"distortion must be 4, 5 or 8 numbers (k1,k2,p1,p2[,k3[,k4,k5,k6]]), "
+                f"got {len(distortion)}"
+            )
+        if not all(math.isfinite(v) for v in distortion):
+            raise ValueError(f"distortion must be finite numbers, got {list(distortion)}")
 
 
 @dataclass(frozen=True)

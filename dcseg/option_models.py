@@ -32,6 +32,9 @@ Member = tuple[type[Any], str]
 
 MAX_NAMES = 256
 """The most names a list option (``tuple[str, ...]``, e.g. stuff classes) may hold."""
+MAX_NUMBERS = 16
+"""The most numbers a list-of-numbers option (``tuple[float, ...]``, e.g. lens distortion
+coefficients) may hold."""
 
 
 def _plain_name(name: str) -> str:
@@ -150,6 +153,9 @@ def _tuple(items: tuple[Any, ...], bounds: tuple[float, float] | None) -> Any:
     """A list of names (``tuple[str, ...]``) or a fixed-length tuple of numbers."""
     if items == (str, Ellipsis):
         return Annotated[tuple[NAME, ...], Field(max_length=MAX_NAMES)]
+    if items == (float, Ellipsis):  # coefficients: a few finite numbers
+        number = Annotated[float, Field(allow_inf_nan=False)]
+        return Annotated[tuple[number, ...], Field(min_length=1, max_length=MAX_NUMBERS)]
     element: Any
     if items[0] is int and bounds is not None:
         element = Annotated[int, Field(ge=bounds[0], le=bounds[1])]

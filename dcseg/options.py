@@ -143,9 +143,12 @@ def build_config(preset_name: str | PipelineConfig, options: JobOptions) -> JobC
             ),
         )
         cfg = cfg.seeded(seg["seed"]) if "seed" in seg else cfg
-        capture = CaptureOptions(**group(options, "capture").model_dump())
     except ValueError as error:
         raise InputError([Problem("options", str(error))]) from None
+    try:
+        capture = CaptureOptions(**group(options, "capture").model_dump())
+    except ValueError as error:
+        raise InputError([Problem("options.capture", str(error))]) from None
     return JobConfig(cfg, capture)
 
 

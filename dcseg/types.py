@@ -67,6 +67,47 @@ class Intrinsics:
         return cls(float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]), width, height)
 
 
+LensModel = Literal["opencv", "fisheye"]
+"""Lens distortion models, as OpenCV names and orders their coefficients: ``opencv`` =
+``k1 k2 p1 p2 [k3 [k4 k5 k6]]`` (radial, tangential, rational radial), ``fisheye`` =
+``k1 k2 k3 k4`` (equidistant with polynomial ``theta``)."""
+
+
+@dataclass(frozen=True)
+class Lens:
+    """The lens distortion of a camera, as a layout states it.
+
+    Attributes:
+        model: :data:`LensModel`.
+        coefficients: in the model's order (``opencv``: 4, 5 or 8; ``fisheye``: 4).
+        source: where it was stated (a file and field), for messages and reports.
+    """
+
+    model: LensModel
+    coefficients: tuple[float, ...]
+    source: str = ""
+
+    @property
+    def is_identity(self) -> bool:
+        """Whether the lens has no distortion (every coefficient 0)."""
+        return not any(self.coefficients)
+
+
+@dataclass(frozen=True)
+class Undistortion:
+    """How a frame with lens distortion was resampled onto a pinhole camera of its size.
+
+    Attributes:
+        lens: the distortion removed.
+        source: the distorted camera's intrinsics (at the image's native size).
+        pinhole: the intrinsics of the undistorted image (same size): the frame's.
+    """
+
+    lens: Lens
+    source: Intrinsics
+    pinhole: Intrinsics
+
+
 def pose_problem(c2w: NDArray[Any]) -> str | None:
     """Why ``c2w`` is not a 4x4 rigid camera-to-world transform, or None if it is one."""
     if c2w.shape != (4, 4):
@@ -96,6 +137,9 @@ class Frame:
         c2w: ``[4, 4]`` float64 camera-to-world pose, OpenCV axes.
         files: where each part came from (``{"rgb": path, "depth": path, "pose": path}``), used
             to name files in error messages.
+        undistortion: how the frame's files were resampled onto ``intrinsics`` when their
+            camera has lens distortion (masks given for those files are resampled the same
+            way, :mod:`dcseg.lens`); None = the files are the frame.
     """
 
     name: str
@@ -104,6 +148,7 @@ class Frame:
     intrinsics: Intrinsics
     c2w: NDArray[np.float64]
     files: dict[str, str] = field(default_factory=dict)
+    undistortion: Undistortion | None = None
 
     def __post_init__(self) -> None:
         _frozen(self.rgb)

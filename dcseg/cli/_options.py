@@ -56,6 +56,16 @@ def parse_intrinsics(text: str) -> tuple[float, float, float, float]:
     return fx, fy, cx, cy
 
 
+def parse_numbers(text: str) -> tuple[float, ...]:
+    """Parse comma-separated numbers (``-0.26,0.95,-0.005,0.003,1.16``)."""
+    try:
+        return tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers like -0.26,0.95,-0.005,0.003, got {text!r}"
+        ) from None
+
+
 def parse_names(text: str) -> tuple[str, ...]:
     """Parse comma-separated names (``wall,floor,ceiling``; ``""`` = none); each is stripped,
     and a blank one is refused."""
@@ -136,6 +146,8 @@ def _parser(f: dataclasses.Field[Any], hint: Any) -> Callable[[str], Any] | None
         items = typing.get_args(base)
         if items == (str, Ellipsis):
             return parse_names
+        if items == (float, Ellipsis):
+            return parse_numbers
         return parse_size if items[0] is int else parse_intrinsics
     return base if base in (int, float) else None  # type: ignore[no-any-return]
 

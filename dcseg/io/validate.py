@@ -9,6 +9,7 @@ frames cannot be read, so every problem of every input is reported in one pass.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -30,7 +31,15 @@ from dcseg.io.mask_formats import describe_layout, detect_masks
 from dcseg.io.mask_formats.stacks import stack_pixels
 from dcseg.io.masks import read_agnostic_masks
 from dcseg.io.semantic import iter_semantic_maps, read_vocabulary
-from dcseg.types import AgnosticMasks, Capture, Frame, GroundTruth, SemanticMap, Vocabulary
+from dcseg.types import (
+    AgnosticMasks,
+    Capture,
+    Frame,
+    GroundTruth,
+    Lens,
+    SemanticMap,
+    Vocabulary,
+)
 
 ASPECT_TOLERANCE = 0.02
 """Largest relative difference between a mask's and its frame's aspect ratio."""
@@ -169,6 +178,7 @@ class _CaptureTally:
         self.valid = 0
         self.depth_min = float("inf")
         self.depth_max = float("-inf")
+        self.lenses: Counter[Lens] = Counter()
 
     def add(self, frame: Frame) -> list[Problem]:
         """Count ``frame`` in; returns its problems (duplicate name, bad arrays)."""
@@ -179,6 +189,8 @@ class _CaptureTally:
         out.extend(frame.problems())
         self.frames += 1
         self.sizes.add(f"{frame.width}x{frame.height}")
+        if frame.undistortion is not None:
+            self.lenses[frame.undistortion.lens] += 1
         valid = frame.depth[frame.depth > 0]
         self.pixels += int(frame.depth.size)
         self.valid += int(valid.size)
@@ -196,6 +208,7 @@ class _CaptureTally:
             "depth_min_m": self.depth_min if self.valid else None,
             "depth_max_m": self.depth_max if self.valid else None,
             "depth_valid_fraction": float(self.valid / self.pixels) if self.pixels else 0.0,
+            **_lens_summary(self.lenses),
             **(self.depthless or {}),
         }
 
@@ -383,8 +396,19 @@ def summarise_capture(capture: Capture) -> dict[str, Any]:
         "depth_min_m": float(values.min()) if values.size else None,
         "depth_max_m": float(values.max()) if values.size else None,
         "depth_valid_fraction": float(values.size / pixels) if pixels else 0.0,
+        **_lens_summary(Counter(f.undistortion.lens for f in capture.frames if f.undistortion)),
         **(depth_summary(_points(capture)) if capture.depth_source == "none" else {}),
     }
+
+
+def _lens_summary(lenses: Mapping[Lens, int]) -> dict[str, list[str]]:
+    """``{"undistorted": [...]}``: per lens, how many frames were undistorted through it
+    (:mod:`dcseg.lens`); empty when none was."""
+    lines = []
+    for lens, n in lenses.items():
+        shown = " ".join(f"{v:g}" for v in lens.coefficients)
+        lines.append(f"{n} frame(s) through the {lens.model} lens ({shown}) of {lens.source}")
+    return {"undistorted": lines} if lines else {}
 
 
 def _points(capture: Capture) -> int | None:

@@ -14,6 +14,7 @@ import torch
 from dcseg.devices import resolve_device
 from dcseg.errors import InputError
 from dcseg.gaussians import Gaussians
+from dcseg.lens import of_frames, records
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.poses import refinement_report
 from dcseg.reconstruct.stage import Reconstruction
@@ -49,7 +50,8 @@ def reconstruct_scene(
     result = fit_gaussians(
         capture, replace(cfg, backend=backend), device=device, on_progress=on_progress
     )
-    return result.gaussians, _report(result, cfg, backend, device)
+    report = _report(result, cfg, backend, device)
+    return result.gaussians, {**report, "undistortion": records(of_frames(capture.frames))}
 
 
 def _finite(value: float) -> float | None:

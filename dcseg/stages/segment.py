@@ -92,6 +92,7 @@ def _with_semantic(run: StageRun, saved: SavedRun) -> SavedRun:
     ``assign.unlabelled_id`` names, if any, is unlabelled in either."""
     from dcseg.io.folders import FrameSelection
     from dcseg.io.semantic import read_semantic_maps, read_vocabulary, without_class
+    from dcseg.lens import from_records, undistort_semantic
 
     unlabelled = run.config.pipeline.assign.unlabelled_id
     masks, vocabulary_file = run.inputs.semantic_masks, run.inputs.vocabulary
@@ -108,6 +109,8 @@ def _with_semantic(run: StageRun, saved: SavedRun) -> SavedRun:
     semantic = read_semantic_maps(
         masks, vocabulary, size=view_size(saved), frames=frames, unlabelled=unlabelled
     )
+    undistorted = from_records(saved.record.get("capture", {}).get("undistortion", []))
+    semantic = undistort_semantic(semantic, undistorted)
     return replace(saved, semantic=semantic, vocabulary=vocabulary)
 
 

@@ -36,6 +36,7 @@ def train(run: StageRun) -> StageResult:
     from dcseg.io.mask_formats.scores import min_scores
     from dcseg.io.masks import read_agnostic_masks
     from dcseg.io.run_output import SavedRun, preview_indices, save_state
+    from dcseg.lens import of_frames, records, undistort_agnostic
     from dcseg.pipeline import train_scene
     from dcseg.reconstruct.job import device_of
     from dcseg.types import Vocabulary
@@ -51,6 +52,8 @@ def train(run: StageRun) -> StageResult:
             frames=plan.selection(),
             min_scores=min_scores(run.config.pipeline.affinity),
         )
+        undistorted = of_frames(capture.frames)
+        agnostic = undistort_agnostic(agnostic, undistorted)
     if not any(len(m) for m in agnostic.values()):
         raise InputError.single("class-agnostic masks", "no frame has any mask")
     size = SceneSize(len(capture), plan.size[0] * plan.size[1], len(gaussians))
@@ -69,7 +72,7 @@ def train(run: StageRun) -> StageResult:
     del capture  # the views' depth and weights are in state/ now; previews keep a few frames
     record = {
         "inputs": run.inputs.describe(),
-        "capture": plan.summary(),
+        "capture": {**plan.summary(), "undistortion": records(undistorted)},
         "reconstruction": _summary(run),
         "size_rules": describe(given, cfg, size),
     }

@@ -43,6 +43,8 @@ def _paths(response: Any) -> list[str]:
         ({"budget": {"max_side": "huge"}}, "options.budget.max_side"),
         ({"budget": {"max_keyframes": 10**9}}, "options.budget.max_keyframes"),
         ({"budget": {"min_rotation_deg": 720}}, "options.budget.min_rotation_deg"),
+        ({"capture": {"distortion": [0.1] * 17}}, "options.capture.distortion"),
+        ({"capture": {"distortion": "barrel"}}, "options.capture.distortion"),
     ],
 )
 def test_job_options_out_of_bounds_answer_422_naming_the_field(
@@ -67,6 +69,20 @@ def test_non_finite_options_answer_422(client, upload_id, queue, literal):
     paths = _paths(response)
     assert "body.options.capture.depth_trunc" in paths
     assert "body.options.reconstruct.depth_weight" in paths
+    assert queue.job_ids == []
+
+
+@pytest.mark.parametrize(
+    ("capture", "reason"),
+    [
+        ({"distortion": [0.1, 0, 0, 0]}, "distortion is the lens of intrinsics"),
+        ({"intrinsics": [500, 500, 320, 240], "distortion": [0.1, 0.2, 0.3]}, "4, 5 or 8"),
+    ],
+)
+def test_lens_distortion_checked_with_its_intrinsics(client, upload_id, queue, capture, reason):
+    body = assert_problem(_post(client, upload_id, {"capture": capture}), 422)
+    assert body["errors"][0]["path"] == "body.options.capture"
+    assert reason in body["errors"][0]["reason"]
     assert queue.job_ids == []
 
 

@@ -24,11 +24,13 @@ its pose is world-to-camera, ``x_cam = R(q) x_world + t``, so ``c2w = [R^T | -R^
 puts the centre of the top-left pixel at (0.5, 0.5), dcseg at (0, 0): ``cx = cx_colmap - 0.5``
 (same for ``cy``).
 
-Camera models: ``SIMPLE_PINHOLE`` and ``PINHOLE``; ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV`` and
-``FULL_OPENCV`` only with all distortion coefficients 0. Lens distortion is refused (dcseg
-renders pinhole cameras): undistort first with ``colmap image_undistorter``, which writes
-``PINHOLE`` cameras and undistorted images (as 3DGS's ``convert.py`` does). Fisheye models are
-refused the same way.
+Camera models: ``SIMPLE_PINHOLE`` and ``PINHOLE``; ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV``,
+``FULL_OPENCV`` (OpenCV's radial-tangential model, its coefficients in COLMAP's order = OpenCV's)
+and ``OPENCV_FISHEYE`` (OpenCV's fisheye model) with their distortion: the frames are
+undistorted when they are read, and masks given for the distorted images with them
+(:mod:`dcseg.lens`). ``FOV``, ``SIMPLE_RADIAL_FISHEYE``, ``RADIAL_FISHEYE`` and
+``THIN_PRISM_FISHEYE`` are refused: undistort first with ``colmap image_undistorter``, which
+writes ``PINHOLE`` cameras and undistorted images (as 3DGS's ``convert.py`` does).
 
 Without a ``depth/`` folder the capture is RGB-only (``Capture.depth_source == "none"``, every
 frame's depth all 0): ``points3D`` is then required and read (:mod:`.colmap_points`), the
@@ -66,6 +68,7 @@ from dcseg.io.captures.common import (
     rel,
     warn_if_options_intrinsics,
 )
+from dcseg.types import Lens
 
 __all__ = ["MODELS", "list_frames", "matches", "model_folder"]
 
@@ -86,13 +89,15 @@ MODELS: dict[int, tuple[str, int]] = {
 
 _BY_NAME = {name: (model_id, count) for model_id, (name, count) in MODELS.items()}
 _ONE_FOCAL = {"SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"}
-_TWO_FOCAL = {"PINHOLE", "OPENCV", "FULL_OPENCV"}
+_TWO_FOCAL = {"PINHOLE", "OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE"}
 _QUATERNION_TOLERANCE = 1e-3
 _IMAGE_HEADER = 64 + 1 + 8  # fixed part, the shortest name (its NUL), the 2D point count
 _UNDISTORT = (
-    "undistort the images first with `colmap image_undistorter` or, without COLMAP, "
-    "`pip install pycolmap` and `pycolmap.undistort_images(OUT, MODEL_FOLDER, IMAGES_FOLDER)` "
-    "(both write PINHOLE cameras and undistorted images; segment those)"
+    "dcseg reads the pinhole models and SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV and "
+    "OPENCV_FISHEYE (undistorting the images); undistort the images first with "
+    "`colmap image_undistorter` or, without COLMAP, `pip install pycolmap` and "
+    "`pycolmap.undistort_images(OUT, MODEL_FOLDER, IMAGES_FOLDER)` (both write PINHOLE cameras "
+    "and undistorted images; segment those)"
 )
 _NO_POINTS = (
     "missing: an RGB-only COLMAP capture (no depth/ folder) is initialised from the sparse "
@@ -290,23 +295,29 @@ def _read_model(root: Path, folder: Path) -> tuple[dict[int, _Camera], list[_Ima
 
 
 def _pinhole(camera: _Camera) -> Camera | str:
-    """The pinhole intrinsics of a camera in dcseg's pixel convention, or why there are none."""
+    """The intrinsics (and lens) of a camera in dcseg's pixel convention, or why there are
+    none."""
     params = camera.params
     if camera.model in _ONE_FOCAL:
         focal, distortion = (params[0], params[0], params[1], params[2]), params[3:]
     elif camera.model in _TWO_FOCAL:
         focal, distortion = (params[0], params[1], params[2], params[3]), params[4:]
     else:
-        return f"camera model {camera.model} is not supported (no pinhole model): {_UNDISTORT}"
-    if any(value != 0.0 for value in distortion):
-        shown = " ".join(f"{v:g}" for v in distortion)
-        return (
-            f"camera model {camera.model} has lens distortion ({shown}), which dcseg does not "
-            f"model: {_UNDISTORT}"
-        )
+        return f"camera model {camera.model} is not supported: {_UNDISTORT}"
     fx, fy, cx, cy = focal
     size = (camera.width, camera.height)
-    return Camera(fx, fy, cx - 0.5, cy - 0.5, size, camera.source)
+    lens = _lens(camera.model, distortion, camera.source)
+    return Camera(fx, fy, cx - 0.5, cy - 0.5, size, camera.source, lens)
+
+
+def _lens(model: str, distortion: tuple[float, ...], source: str) -> Lens | None:
+    """A COLMAP model's distortion parameters in OpenCV's order (None without distortion)."""
+    if not any(distortion):
+        return None
+    if model == "OPENCV_FISHEYE":
+        return Lens("fisheye", distortion, f"{source} ({model})")
+    padded = {"SIMPLE_RADIAL": (*distortion, 0.0, 0.0, 0.0), "RADIAL": (*distortion, 0.0, 0.0)}
+    return Lens("opencv", padded.get(model, distortion), f"{source} ({model})")
 
 
 def _c2w(image: _Image) -> NDArray[np.float64] | str:

@@ -28,7 +28,17 @@ from dcseg.io.captures.depth_files import read_npy, register_depth
 from dcseg.io.exr import read_exr_depth
 from dcseg.io.images import display_path, read_image, resize_area, resize_nearest
 from dcseg.io.lzfse_buffers import read_lzfse_array
-from dcseg.types import Capture, DepthSource, Frame, Intrinsics, SparsePoints, capture_problems
+from dcseg.lens import undistort, undistortion
+from dcseg.types import (
+    Capture,
+    DepthSource,
+    Frame,
+    Intrinsics,
+    Lens,
+    SparsePoints,
+    Undistortion,
+    capture_problems,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -37,6 +47,8 @@ _R = TypeVar("_R")
 
 OPTIONS_SOURCE = "CaptureOptions.intrinsics"
 """The ``source`` of a :class:`Camera` given through the options."""
+DISTORTION_SOURCE = "CaptureOptions.distortion"
+"""The ``source`` of a :class:`~dcseg.types.Lens` given through the options."""
 
 RAW_DEPTH_SUFFIX = ".depth"
 """Depth files stored as LZFSE-compressed float32 metres of :attr:`FrameSpec.raw_size`."""
@@ -52,6 +64,8 @@ class Camera:
         fx, fy, cx, cy: in pixels of the colour image.
         size: the ``(width, height)`` they were stated for, or None to take the image's size.
         source: where they came from (a file, a JSON path or :data:`OPTIONS_SOURCE`).
+        lens: the lens distortion stated with them; the frames are undistorted when they are
+            read (:mod:`dcseg.lens`). None = a pinhole camera.
     """
 
     fx: float
@@ -60,6 +74,7 @@ class Camera:
     cy: float
     size: tuple[int, int] | None
     source: str
+    lens: Lens | None = None
 
 
 @dataclass(frozen=True)
@@ -211,7 +226,10 @@ def options_camera(options: CaptureOptions) -> Camera | None:
     if options.intrinsics is None:
         return None
     fx, fy, cx, cy = (float(v) for v in options.intrinsics)
-    return Camera(fx, fy, cx, cy, None, OPTIONS_SOURCE)
+    lens = None
+    if options.distortion is not None:
+        lens = Lens("opencv", tuple(float(v) for v in options.distortion), DISTORTION_SOURCE)
+    return Camera(fx, fy, cx, cy, None, OPTIONS_SOURCE, lens)
 
 
 def warn_if_options_intrinsics(options: CaptureOptions, layout: str) -> None:
@@ -299,7 +317,13 @@ def _load_frame(
         intrinsics = _native_intrinsics(spec.camera, size, rel(spec.rgb, root))
     except InputError as exc:
         return None, [*problems, *exc.problems]
-    return _finish_frame(spec, rgb, depth, intrinsics, root, options), problems
+    undistorted = None
+    lens = spec.camera.lens
+    if lens is not None and not lens.is_identity:
+        undistorted = undistortion(lens, intrinsics)
+        rgb, depth = undistort(rgb, depth, undistorted)
+        intrinsics = undistorted.pinhole
+    return _finish_frame(spec, rgb, depth, intrinsics, root, options, undistorted), problems
 
 
 def _collect(
@@ -469,6 +493,7 @@ def _finish_frame(
     intrinsics: Intrinsics,
     root: Path,
     options: CaptureOptions,
+    undistorted: Undistortion | None = None,
 ) -> Frame:
     if options.size is not None:
         _check_downscale(options.size, rgb, rel(spec.rgb, root))
@@ -492,6 +517,7 @@ def _finish_frame(
         intrinsics=intrinsics,
         c2w=np.array(spec.c2w, dtype=np.float64),
         files=files,
+        undistortion=undistorted,
     )
 
 

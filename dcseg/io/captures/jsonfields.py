@@ -53,8 +53,11 @@ class JsonFields:
         self.problems: list[Problem] = []
 
     def add(self, where: str, reason: str) -> None:
-        """Record a problem at JSON path ``where``."""
-        self.problems.append(Problem(self.shown, f"{where}: {reason}" if where else reason))
+        """Record a problem at JSON path ``where`` (once: a top-level field every frame reads
+        is reported once)."""
+        problem = Problem(self.shown, f"{where}: {reason}" if where else reason)
+        if problem not in self.problems:
+            self.problems.append(problem)
 
     def raise_if_any(self) -> None:
         """Raise one InputError with every problem recorded so far."""

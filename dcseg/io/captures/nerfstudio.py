@@ -13,15 +13,16 @@ Camera keys may be global or per frame (per frame wins); ``w``/``h`` are optiona
 and is converted to OpenCV axes by right-multiplying with ``diag(1, -1, -1, 1)``;
 ``applied_transform`` is already folded into it and is ignored. Depth PNGs are uint16 with
 metres = value * ``depth_unit_scale_factor`` (default 0.001, i.e. millimetres). Every frame needs
-a ``depth_file_path``. Distortion coefficients are ignored (with a warning). Frames are named by
-the stem of ``file_path``.
+a ``depth_file_path``. Lens distortion (``camera_model`` ``OPENCV``, the default, with ``k1 k2
+k3 p1 p2``, or ``OPENCV_FISHEYE`` with ``k1..k4``; global or per frame) is removed when the frames
+are read (:mod:`dcseg.lens`). Frames are named by the stem of ``file_path``.
 """
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -34,6 +35,7 @@ from dcseg.io.captures.common import (
     warn_if_options_intrinsics,
 )
 from dcseg.io.captures.jsonfields import JsonFields, join, load_json
+from dcseg.types import Lens
 
 __all__ = ["OPENGL_TO_OPENCV", "TRANSFORMS", "list_frames", "matches"]
 
@@ -70,11 +72,12 @@ def _camera(
             fields.add(join(where, key), "missing (neither in the frame nor at the top level)")
         values.append(fields.number(holder, key, at, required=False))
     width, height = (fields.integer(*_holder(doc, frame, k, where), required=False) for k in "wh")
-    if None in values:
+    lens = _lens(fields, doc, frame, where)
+    if None in values or lens is False:
         return None
     fx, fy, cx, cy = (float(v) for v in values if v is not None)
     stated = (width, height) if width is not None and height is not None else None
-    return Camera(fx, fy, cx, cy, stated, f"{TRANSFORMS}:{where}")
+    return Camera(fx, fy, cx, cy, stated, f"{TRANSFORMS}:{where}", lens or None)
 
 
 def _unit(fields: JsonFields, doc: dict[str, Any]) -> float:
@@ -85,10 +88,30 @@ def _unit(fields: JsonFields, doc: dict[str, Any]) -> float:
     return factor or _DEFAULT_UNIT
 
 
-def _warn_distortion(doc: dict[str, Any]) -> None:
-    coefficients = [doc.get(k, 0.0) for k in _DISTORTION_KEYS]
-    if any(isinstance(c, int | float) and c != 0 for c in coefficients):
-        logger.warning("%s has distortion coefficients; dcseg ignores them", TRANSFORMS)
+def _lens(
+    fields: JsonFields, doc: dict[str, Any], frame: dict[str, Any], where: str
+) -> Lens | None | Literal[False]:
+    """The frame's lens in OpenCV's order (None = no distortion, False = a problem, added to
+    ``fields``): nerfstudio's ``OPENCV`` is radial ``k1 k2 k3`` (its ``k4``, an ``r^8`` term
+    OpenCV lacks, must be 0) and tangential ``p1 p2``; ``OPENCV_FISHEYE`` is ``k1..k4``."""
+    values = {}
+    for key in _DISTORTION_KEYS:
+        holder, _, at = _holder(doc, frame, key, where)
+        values[key] = fields.number(holder, key, at, required=False) or 0.0
+    holder, key, at = _holder(doc, frame, "camera_model", where)
+    model = fields.string(holder, key, at, required=False) or "OPENCV"
+    k1, k2, k3, k4, p1, p2 = (values[key] for key in _DISTORTION_KEYS)
+    source = f"{TRANSFORMS}:{join(at, 'camera_model')} {model}"
+    if model == "OPENCV_FISHEYE" and not (p1 or p2):
+        return Lens("fisheye", (k1, k2, k3, k4), source) if any(values.values()) else None
+    if model == "OPENCV" and not k4:
+        return Lens("opencv", (k1, k2, p1, p2, k3), source) if any(values.values()) else None
+    reason = {
+        "OPENCV": "k4 (nerfstudio's r^8 term) has no OpenCV equivalent; dcseg reads k1 k2 k3 p1 p2",
+        "OPENCV_FISHEYE": "a fisheye camera has no p1 / p2",
+    }.get(model, f"{model} is not supported (OPENCV or OPENCV_FISHEYE)")
+    fields.add(join(at, "camera_model"), reason)
+    return False
 
 
 def _frame(
@@ -124,7 +147,6 @@ def list_frames(root: Path, options: CaptureOptions) -> Listing:
     if doc is None:
         fields.raise_if_any()
         return Listing()
-    _warn_distortion(doc)
     unit = _unit(fields, doc)
     value = fields.get(doc, "frames", "")
     items = fields.array(value, "frames") if value is not None else None

@@ -6,7 +6,8 @@
     depth.txt         "timestamp filename" per line, uint16 PNG depth, value / 5000 = metres
     groundtruth.txt   "timestamp tx ty tz qx qy qz qw": the colour camera's optical centre and
                       orientation (scalar-last unit quaternion) in the world: camera-to-world
-    calibration.txt   optional (ETH3D's TUM-format datasets): "fx fy cx cy"
+    calibration.txt   optional (ETH3D's TUM-format datasets): "fx fy cx cy", optionally
+                      followed by OpenCV's distortion "k1 k2 p1 p2 [k3 [k4 k5 k6]]"
 
 Timestamps are seconds. Each colour frame is associated with the depth image and the pose
 nearest in time (TUM's ``associate.py`` with its default ``max_difference`` of 20 ms; the
@@ -24,12 +25,15 @@ What happens to a colour frame without a match within the tolerance:
 * no pose *inside* that span (a gap in the ground truth): an error naming the line.
 
 Frames are named by their colour timestamp as written in ``rgb.txt`` (``1305031102.175304``).
-TUM stores no intrinsics: they come from ``calibration.txt`` or ``CaptureOptions.intrinsics``.
+TUM stores no intrinsics: they come from ``calibration.txt`` or ``CaptureOptions.intrinsics``
+(with ``CaptureOptions.distortion`` for freiburg1 and 2, whose images are distorted; frames and
+masks are then undistorted when read, :mod:`dcseg.lens`).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +51,7 @@ from dcseg.io.captures.common import (
     options_camera,
     warn_if_options_intrinsics,
 )
+from dcseg.types import Lens
 
 __all__ = ["DEPTH_SCALE", "TOLERANCE", "list_frames", "matches"]
 
@@ -60,10 +65,12 @@ TOLERANCE = 0.02
 RGB, DEPTH, POSES, CALIBRATION = "rgb.txt", "depth.txt", "groundtruth.txt", "calibration.txt"
 _POSE_FIELDS = "timestamp tx ty tz qx qy qz qw"
 _NO_INTRINSICS = (
-    "no intrinsics: TUM RGB-D files store none; pass CaptureOptions(intrinsics=(fx, fy, cx, cy)) "
-    "(--intrinsics) or add calibration.txt ('fx fy cx cy'). TUM's published colour intrinsics "
-    "are freiburg1 517.3 516.5 318.6 255.3, freiburg2 520.9 521.0 325.1 249.7 (both with lens "
-    "distortion, which dcseg does not model), freiburg3 535.4 539.2 320.1 247.6"
+    "no intrinsics: TUM RGB-D files store none; pass CaptureOptions(intrinsics=(fx, fy, cx, cy), "
+    "distortion=(k1, k2, p1, p2, k3)) (--intrinsics, --distortion) or add calibration.txt "
+    "('fx fy cx cy [k1 k2 p1 p2 k3]'). TUM's published colour calibrations are freiburg1 517.3 "
+    "516.5 318.6 255.3 with distortion 0.2624 -0.9531 -0.0054 0.0026 1.1633, freiburg2 520.9 "
+    "521.0 325.1 249.7 with 0.2312 -0.7849 -0.0033 -0.0001 0.9172, freiburg3 535.4 539.2 320.1 "
+    "247.6 (undistorted)"
 )
 
 
@@ -137,12 +144,18 @@ def _camera(root: Path, options: CaptureOptions) -> Camera:
     warn_if_options_intrinsics(options, "TUM (with calibration.txt)")
     values = " ".join(_lines(root, CALIBRATION)).split()
     try:
-        fx, fy, cx, cy = (float(v) for v in values)
+        numbers = [float(v) for v in values]
     except ValueError:
+        numbers = []
+    if len(numbers) not in (4, 8, 9, 12) or not all(math.isfinite(v) for v in numbers):
         raise InputError.single(
-            CALIBRATION, f"expected 4 numbers 'fx fy cx cy', got {' '.join(values)[:80]!r}"
-        ) from None
-    return Camera(fx, fy, cx, cy, None, CALIBRATION)
+            CALIBRATION,
+            "expected 4 numbers 'fx fy cx cy', optionally followed by 4, 5 or 8 OpenCV "
+            f"distortion coefficients 'k1 k2 p1 p2 [k3 [k4 k5 k6]]', got {' '.join(values)[:80]!r}",
+        )
+    fx, fy, cx, cy = numbers[:4]
+    lens = Lens("opencv", tuple(numbers[4:]), CALIBRATION) if len(numbers) > 4 else None
+    return Camera(fx, fy, cx, cy, None, CALIBRATION, lens)
 
 
 class _Times:

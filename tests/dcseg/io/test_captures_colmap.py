@@ -18,7 +18,7 @@ from dcseg.io.captures import detect_layout, read_capture
 from dcseg.io.captures.manifest import write_capture
 from dcseg.io.images import write_image
 from dcseg.io.validate import validate_inputs
-from dcseg.types import Capture, Intrinsics
+from dcseg.types import Capture, Intrinsics, Lens
 from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import (
     RgbdScene,
@@ -141,24 +141,59 @@ def test_single_focal_and_zero_distortion(rgbd_scene: RgbdScene, tmp_path: Path)
     check_round_trip(scene, write_colmap(scene, tmp_path / "opencv", False, opencv))
 
 
-def test_distortion_and_fisheye_are_refused(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
-    cameras: Cameras = {1: ("OPENCV", 16, 12, [20.0, 22.0, 8.0, 6.0, -0.1, 0.01, 0.0, 0.0])}
+def test_distortion_is_removed_when_read(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    """A distorted camera's frames come undistorted onto a pinhole camera of their size, with
+    the lens recorded; depth is resampled by nearest neighbour (no value is made up)."""
+    cameras: Cameras = {1: ("OPENCV", 16, 12, [20.0, 22.0, 8.0, 6.0, -0.1, 0.01, 0.001, 0.0])}
     root = write_colmap(rgbd_scene, tmp_path / "a", binary=False, cameras=cameras)
+    capture = read_capture(root)
+    for frame, depth in zip(capture.frames, rgbd_scene.depth, strict=True):
+        u = frame.undistortion
+        assert u is not None and frame.intrinsics == u.pinhole
+        assert u.lens == Lens(
+            "opencv", (-0.1, 0.01, 0.001, 0.0), "sparse/0/cameras.txt:line 3 (camera 1) (OPENCV)"
+        )
+        assert u.source == Intrinsics(20.0, 22.0, 7.5, 5.5, 16, 12)
+        assert u.pinhole.fx < u.source.fx  # barrel distortion: a wider pinhole view
+        assert frame.depth.shape == (12, 16) and np.isin(frame.depth, depth).all()
+    report = format_report(validate_inputs(RunInputs(root)).summary, [])
+    assert (
+        "undistorted: 4 frame(s) through the opencv lens (-0.1 0.01 0.001 0) of "
+        "sparse/0/cameras.txt:line 3 (camera 1) (OPENCV)" in report
+    )
+
+
+def test_fisheye_lens_and_zero_distortion(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    cameras: Cameras = {
+        1: ("OPENCV_FISHEYE", 16, 12, [20.0, 22.0, 8.0, 6.0, 0.05, 0.0, 0.0, 0.0]),
+        2: ("OPENCV", 16, 12, [20.0, 22.0, 8.0, 6.0, 0.0, 0.0, 0.0, 0.0]),
+    }
+    root = write_colmap(rgbd_scene, tmp_path, binary=False, cameras=cameras)
+    folder = root / "sparse" / "0"
+    text = (folder / "images.txt").read_text()
+    (folder / "images.txt").write_text(text.replace(" 1 frame_1.png", " 2 frame_1.png"))
+    frames = read_capture(root).frames
+    assert [f.undistortion is None for f in frames] == [False, True, False, False]
+    lens = frames[0].undistortion.lens  # type: ignore[union-attr]
+    assert (lens.model, lens.coefficients) == ("fisheye", (0.05, 0.0, 0.0, 0.0))
+    assert frames[1].intrinsics == Intrinsics(20.0, 22.0, 7.5, 5.5, 16, 12)
+
+
+def test_camera_models_it_cannot_undistort_are_refused(
+    rgbd_scene: RgbdScene, tmp_path: Path
+) -> None:
+    cameras: Cameras = {1: ("FOV", 16, 12, [20.0, 22.0, 8.0, 6.0, 0.9])}
+    root = write_colmap(rgbd_scene, tmp_path / "b", cameras=cameras)
     with pytest.raises(InputError) as info:
         read_capture(root)
-    assert [str(p) for p in info.value.problems] == [
-        "sparse/0/cameras.txt:line 3 (camera 1): camera model OPENCV has lens distortion "
-        "(-0.1 0.01 0 0), which dcseg does not model: undistort the images first with "
-        "`colmap image_undistorter` or, without COLMAP, `pip install pycolmap` and "
+    assert str(info.value.problems[0]) == (
+        "sparse/0/cameras.bin:camera 1: camera model FOV is not supported: dcseg reads the "
+        "pinhole models and SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV and OPENCV_FISHEYE "
+        "(undistorting the images); undistort the images first with `colmap "
+        "image_undistorter` or, without COLMAP, `pip install pycolmap` and "
         "`pycolmap.undistort_images(OUT, MODEL_FOLDER, IMAGES_FOLDER)` (both write PINHOLE "
         "cameras and undistorted images; segment those)"
-    ]
-    cameras = {1: ("FOV", 16, 12, [20.0, 22.0, 8.0, 6.0, 0.9])}
-    root = write_colmap(rgbd_scene, tmp_path / "b", cameras=cameras)
-    with pytest.raises(
-        InputError, match=r"^sparse/0/cameras\.bin:camera 1: camera model FOV is not supported"
-    ):
-        read_capture(root)
+    )
 
 
 def test_unknown_camera_model(rgbd_scene: RgbdScene, tmp_path: Path) -> None:

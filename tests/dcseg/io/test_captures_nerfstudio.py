@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import logging
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +10,7 @@ import pytest
 
 from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture
+from dcseg.types import Lens
 from tests.dcseg.io.layouts import (
     GL,
     RgbdScene,
@@ -70,12 +70,40 @@ def test_depth_unit_and_per_frame_camera(rgbd_scene: RgbdScene, tmp_path: Path) 
     assert (k1.fx, k1.fy, k1.cx, k1.cy, k1.width) == (30.0, 22.0, 8.0, 5.5, 16)
 
 
-def test_distortion_is_warned(rgbd_scene: RgbdScene, tmp_path: Path, caplog) -> None:
+def test_distortion_is_removed(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    """``k1 k2 k3 p1 p2`` (OPENCV) are OpenCV's ``k1 k2 p1 p2 k3``; per-frame values win; the
+    frames are resampled onto the pinhole camera recorded with them."""
     doc = nerfstudio_doc(rgbd_scene)
-    doc["k1"] = 0.1
-    with caplog.at_level(logging.WARNING):
+    doc.update(k1=-0.1, k2=0.02, k3=0.001, p1=0.002, p2=-0.001)
+    doc["frames"][1].update(camera_model="OPENCV_FISHEYE", k1=0.05, k3=0.0, p1=0, p2=0)  # type: ignore[index]
+    capture = read_capture(write_nerfstudio(rgbd_scene, tmp_path, doc))
+    first, second = (capture.frames[i].undistortion for i in (0, 1))
+    assert first is not None and second is not None
+    assert first.lens == Lens("opencv", (-0.1, 0.02, 0.002, -0.001, 0.001), first.lens.source)
+    assert first.lens.source == "transforms.json:camera_model OPENCV"
+    assert second.lens.coefficients == (0.05, 0.02, 0.0, 0.0)
+    assert second.lens.model == "fisheye"
+    assert capture.frames[0].intrinsics == first.pinhole != first.source
+    assert first.source == rgbd_scene.k
+
+
+@pytest.mark.parametrize(
+    ("fields", "reason"),
+    [
+        ({"k4": 0.01}, "camera_model: k4 (nerfstudio's r^8 term) has no OpenCV equivalent"),
+        ({"camera_model": "OPENCV_FISHEYE", "p1": 0.01}, "camera_model: a fisheye camera has no"),
+        ({"camera_model": "EQUIRECTANGULAR"}, "camera_model: EQUIRECTANGULAR is not supported"),
+    ],
+)
+def test_lens_it_cannot_model_is_refused_once(
+    rgbd_scene: RgbdScene, tmp_path: Path, fields: dict[str, object], reason: str
+) -> None:
+    doc = nerfstudio_doc(rgbd_scene)
+    doc.update(fields)
+    with pytest.raises(InputError) as info:
         read_capture(write_nerfstudio(rgbd_scene, tmp_path, doc))
-    assert "distortion" in caplog.text
+    shown = [str(p) for p in info.value.problems]
+    assert len(shown) == 1 and shown[0].startswith(f"transforms.json: {reason}")
 
 
 def test_missing_depth_path_and_camera(rgbd_scene: RgbdScene, tmp_path: Path) -> None:

@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dcseg.cli import main
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError
 from dcseg.io.captures import detect_layout, read_capture, tum
 from dcseg.io.images import write_image
+from dcseg.types import Lens
 from tests.dcseg.io.archived import check_zip_with_options
 from tests.dcseg.io.layouts import (
     RgbdScene,
@@ -108,6 +110,46 @@ def test_intrinsics_required(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     (root / "calibration.txt").write_text("20 22 7.5\n")
     with pytest.raises(InputError, match=r"calibration\.txt: expected 4 numbers 'fx fy cx cy'"):
         read_capture(root)
+    (root / "calibration.txt").write_text("20 22 7.5 5.5 0.1 0.2 0.3\n")  # 3 coefficients
+    with pytest.raises(InputError, match=r"optionally followed by 4, 5 or 8 OpenCV distortion"):
+        read_capture(root)
+
+
+FREIBURG1 = (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)  # TUM's published d0..d4
+
+
+def test_distortion_from_calibration_file_or_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    """freiburg1/2 images are distorted: ``d0..d4`` (OpenCV's k1 k2 p1 p2 k3) after the
+    intrinsics in calibration.txt, or --distortion beside --intrinsics."""
+    root = write_tum(rgbd_scene, tmp_path)
+    (root / "calibration.txt").write_text("20 22 7.5 5.5 " + " ".join(map(str, FREIBURG1)))
+    frame = read_capture(root).frames[0]
+    assert frame.undistortion is not None
+    assert frame.undistortion.lens == Lens("opencv", FREIBURG1, "calibration.txt")
+    assert frame.undistortion.source == rgbd_scene.k and frame.intrinsics != rgbd_scene.k
+    (root / "calibration.txt").unlink()
+    options = CaptureOptions(intrinsics=(20.0, 22.0, 7.5, 5.5), distortion=FREIBURG1)
+    same = read_capture(root, options).frames[0]
+    assert same.undistortion is not None
+    assert same.undistortion.lens == Lens("opencv", FREIBURG1, "CaptureOptions.distortion")
+    assert same.intrinsics == frame.intrinsics
+    np.testing.assert_array_equal(same.rgb, frame.rgb)
+
+
+@pytest.mark.parametrize(
+    ("fields", "reason"),
+    [
+        ({"distortion": FREIBURG1}, "distortion is the lens of intrinsics: give intrinsics too"),
+        (
+            {"intrinsics": (20.0, 22.0, 7.5, 5.5), "distortion": (0.1, 0.2, 0.3)},
+            "distortion must be 4, 5 or 8 numbers (k1,k2,p1,p2[,k3[,k4,k5,k6]]), got 3",
+        ),
+    ],
+)
+def test_distortion_option_checked(fields: dict[str, object], reason: str) -> None:
+    with pytest.raises(ValueError) as info:
+        CaptureOptions(**fields)  # type: ignore[arg-type]
+    assert str(info.value) == reason
 
 
 def test_no_depth_within_tolerance(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
@@ -241,3 +283,18 @@ def test_synth_scene_as_tum(tmp_path: Path) -> None:
     assert len(capture) == 6
     depth_atol = 0.5 / tum.DEPTH_SCALE + 1e-6
     assert_same_frames(capture.frames, original.frames, pose_atol=1e-9, depth_atol=depth_atol)
+
+
+def test_validate_names_the_lens_given_on_the_command_line(
+    rgbd_scene: RgbdScene, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    root = write_tum(rgbd_scene, tmp_path)
+    flags = ["--intrinsics", "20,22,7.5,5.5", "--distortion", ",".join(map(str, FREIBURG1))]
+    assert main(["validate", str(root), *flags]) == 0
+    assert (
+        "undistorted: 4 frame(s) through the opencv lens (0.2624 -0.9531 -0.0054 0.0026 1.1633) "
+        "of CaptureOptions.distortion" in capsys.readouterr().out
+    )
+    with pytest.raises(SystemExit):
+        main(["validate", str(root), "--intrinsics", "20,22,7.5,5.5", "--distortion", "a,b"])
+    assert "--distortion: expected comma-separated numbers" in capsys.readouterr().err

@@ -6,15 +6,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pycolmap
 import pytest
 
-from dcseg.errors import InputError
 from dcseg.io.captures import read_capture
-from dcseg.io.images import write_image
-from dcseg.types import Capture
-from tests.dcseg.io.layouts import RgbdScene, mm, scene_capture
+from dcseg.io.images import read_image, write_image
+from dcseg.types import Capture, Intrinsics
+from tests.dcseg.io.layouts import RgbdScene, make_scene, mm, scene_capture
 from tests.dcseg.io.test_captures_colmap import remove_depth, write_colmap
 
 POINTS = np.array([[0.5, 0.25, 2.0], [-1.0, 0.75, 3.5], [0.1, -0.2, 1.25]])
@@ -122,26 +122,61 @@ def test_fixtures_read_by_pycolmap_as_by_dcseg(
     assert sparse.track[0] == point.track.length()
 
 
-def test_a_distorted_model_undistorted_by_pycolmap_as_the_refusal_says(
-    rgbd_scene: RgbdScene, tmp_path: Path
-) -> None:
-    """What the refusal of lens distortion tells users to run reads: pycolmap's undistorter
-    writes a PINHOLE model and images that dcseg reads, with the same poses."""
-    k = rgbd_scene.k
-    params = [k.fx, k.fy, k.cx + 0.5, k.cy + 0.5, -0.2, 0.05, 0.0, 0.0]
-    root = remove_depth(
-        write_colmap(
-            rgbd_scene, tmp_path / "raw", cameras={1: ("OPENCV", k.width, k.height, params)}
-        )
-    )
-    with pytest.raises(InputError, match="pycolmap.undistort_images"):
-        read_capture(root)
-    out = tmp_path / "undistorted"
+def smooth_scene(seed: int = 0) -> RgbdScene:
+    """Four 96x72 frames of smooth colour (interpolation differs little between resamplers)."""
+    scene = make_scene(width=96, height=72, seed=seed)
+    v, u = np.mgrid[0:72, 0:96].astype(np.float64)
+    rgb = [
+        np.stack(
+            [
+                128 + 100 * np.sin(u / (9.0 + i) + v / 13.0),
+                128 + 100 * np.cos(v / (7.0 + i)),
+                2.0 * u + v / 2.0,
+            ],
+            axis=-1,
+        ).astype(np.uint8)
+        for i in range(scene.n)
+    ]
+    return RgbdScene(rgb, scene.depth, scene.c2w, Intrinsics(80.0, 82.0, 47.0, 36.0, 96, 72))
+
+
+def test_a_distorted_model_undistorted_as_pycolmap_undistorts_it(tmp_path: Path) -> None:
+    """dcseg's own undistortion against COLMAP's undistorter (pycolmap): each pixel of dcseg's
+    frame, looked up along its ray in COLMAP's undistorted image, has the same colour."""
+    scene = smooth_scene()
+    k = scene.k
+    params = [k.fx, k.fy, k.cx + 0.5, k.cy + 0.5, -0.25, 0.06, 0.002, -0.001]
+    cameras = {1: ("OPENCV", k.width, k.height, params)}
+    root = remove_depth(write_colmap(scene, tmp_path / "raw", cameras=cameras))
+    capture = read_capture(root)
+    out = tmp_path / "colmap"
     pycolmap.undistort_images(str(out), str(root / "sparse" / "0"), str(root / "images"))
-    capture = read_capture(out)
-    assert capture.depth_source == "none" and capture.names == tuple(
-        f"frame_{i}" for i in range(rgbd_scene.n)
-    )
-    for frame, before in zip(capture.frames, scene_capture(rgbd_scene).frames, strict=True):
-        np.testing.assert_allclose(frame.c2w, before.c2w, atol=1e-6)
-        assert frame.rgb.shape[2] == 3 and frame.intrinsics.fx > 0
+    undistorted = read_capture(out)  # what COLMAP's undistorter writes reads as it is
+    assert all(f.undistortion is None for f in undistorted.frames)
+    for theirs_frame, ours_frame in zip(undistorted.frames, capture.frames, strict=True):
+        np.testing.assert_allclose(theirs_frame.c2w, ours_frame.c2w, atol=1e-6)
+    model = pycolmap.Reconstruction(str(out / "sparse"))
+    (camera,) = model.cameras.values()
+    for frame, raw in zip(capture.frames, scene.rgb, strict=True):
+        assert frame.undistortion is not None
+        theirs = read_image(out / "images" / f"{frame.name}.png")
+        ours, inside = looked_up(theirs, frame.intrinsics, camera)
+        assert inside.mean() > 0.8  # COLMAP keeps a slightly narrower view
+        diff = np.abs(ours.astype(np.int16) - frame.rgb.astype(np.int16))[inside]
+        assert diff.mean() < 0.5 and diff.max() <= 2
+        # the distorted image as it was, taken for a pinhole one, is far off
+        as_pinhole, inside = looked_up(theirs, frame.undistortion.source, camera)
+        assert np.abs(as_pinhole.astype(np.int16) - raw.astype(np.int16))[inside].mean() > 5
+
+
+def looked_up(
+    image: np.ndarray, k: Intrinsics, camera: pycolmap.Camera
+) -> tuple[np.ndarray, np.ndarray]:
+    """``image`` of COLMAP's PINHOLE ``camera`` sampled along the rays of ``k``'s pixels, and
+    where those rays fall inside it."""
+    fx, fy, cx, cy = camera.params  # COLMAP's pixel convention: centres at + 0.5
+    v, u = np.mgrid[0 : k.height, 0 : k.width].astype(np.float64)
+    x = ((u - k.cx) / k.fx * fx + cx - 0.5).astype(np.float32)
+    y = ((v - k.cy) / k.fy * fy + cy - 0.5).astype(np.float32)
+    inside = (x >= 1) & (x <= camera.width - 2) & (y >= 1) & (y <= camera.height - 2)
+    return cv2.remap(image, x, y, cv2.INTER_LINEAR), inside

@@ -29,13 +29,13 @@ def add_pipeline_options(parser: argparse.ArgumentParser) -> None:
 
 
 def add_reconstruct_flags(parser: Any) -> None:
-    """``--surface-priors`` (discs centred on the observed depth) and ``--refine-poses``."""
+    """``--surface-priors`` (tight surfaces) and ``--refine-poses``."""
     parser.add_argument(
         "--surface-priors",
         action="store_true",
-        help="reconstruct thin discs pulled onto the observed depth, rendering the depth of "
-        "their planes (surfaces within mm on clean depth): "
-        "dcseg.reconstruct.config.SURFACE_PRIORS",
+        help="tight surfaces: pull the discs onto the observed depth from the first step and "
+        "render the depth of their planes (within mm on clean depth instead of ~1 cm, for "
+        "some segmentation quality): dcseg.reconstruct.config.SURFACE_PRIORS",
     )
     parser.add_argument(
         "--refine-poses",

@@ -178,15 +178,16 @@ class ReconstructConfig:
     init_opacity: float = option(0.3, bounds=(0.0001, 0.9999))
     """Opacity of every initial Gaussian."""
 
-    init_thickness: float | None = option(None, bounds=(0.001, 1.0))
+    init_thickness: float | None = option(0.1, bounds=(0.001, 1.0))
     """Start every Gaussian as a disc in the plane of its neighbours, this fraction as thick
     as it is wide (:func:`dcseg.reconstruct.surface.disc_frames`); None = isotropic blobs."""
 
-    # --- surface priors (dcseg.reconstruct.surface) ---
-    thickness_weight: float = option(0.0, bounds=(0.0, 1000.0))
+    # --- surface priors (dcseg.reconstruct.surface); on by default: opaque centres ~1 cm from
+    # the surfaces instead of ~2 cm, held-out segmentation kept (benchmarks/README "Surfaces") ---
+    thickness_weight: float = option(1.0, bounds=(0.0, 1000.0))
     """Weight of the mean smallest scale (metres) in the loss: keeps Gaussians thin discs."""
 
-    centre_weight: float = option(0.0, bounds=(0.0, 1000.0))
+    centre_weight: float = option(10.0, bounds=(0.0, 1000.0))
     """Weight of the mean distance (metres) of the Gaussian centres to the observed depth of
     the step's view, counting the centres within ``centre_band`` of it."""
 
@@ -199,10 +200,11 @@ class ReconstructConfig:
     None = ``centre_band``. Narrower keeps the far side of a small object, hidden behind its
     near side, where it is (:func:`dcseg.reconstruct.surface.centre_depth_grad`)."""
 
-    centre_from: int = option(0, bounds=(0, 1000000))
-    """First iteration of the ``centre_weight`` pull. From ``densify_until`` on, the pull only
-    moves the Gaussians densification made; earlier, it also decides which ones are made and
-    kept (on discs it halves the opaque Gaussians of small objects)."""
+    centre_from: int | None = option(None, bounds=(0, 1000000))
+    """First iteration of the ``centre_weight`` pull; None = ``densify_until``. From there on,
+    the pull only moves the Gaussians densification made; earlier, it also decides which ones
+    are made and kept (on discs it halves the opaque Gaussians of small objects, which then
+    merge into their supports' clusters)."""
 
     centre_window: int = option(1, bounds=(1, 15))
     """Edge (odd, pixels) of the window around a centre's pixel whose valid observed depth
@@ -286,6 +288,12 @@ class ReconstructConfig:
     """Densification stops adding Gaussians beyond this count. At the reference size: runs
     grow it with their training pixels (:func:`dcseg.sizes.gaussian_growth`)."""
 
+    @property
+    def pull_start(self) -> int:
+        """The first iteration of the ``centre_weight`` pull (``centre_from``, default
+        ``densify_until``)."""
+        return self.densify_until if self.centre_from is None else self.centre_from
+
     def __post_init__(self) -> None:
         if self.iterations < 0:
             raise ValueError(f"iterations must be >= 0, got {self.iterations}")
@@ -310,11 +318,12 @@ class ReconstructConfig:
             raise ValueError(f"ssim_lambda must be in [0, 1], got {self.ssim_lambda}")
         if self.init_thickness is not None and not 0.0 < self.init_thickness <= 1.0:
             raise ValueError(f"init_thickness must be in (0, 1], got {self.init_thickness}")
-        for name in ("thickness_weight", "centre_weight", "centre_band", "centre_from"):
+        for name in ("thickness_weight", "centre_weight", "centre_band"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if self.centre_behind is not None and not self.centre_behind >= 0:
-            raise ValueError(f"centre_behind must be >= 0, got {self.centre_behind}")
+        for name in ("centre_behind", "centre_from"):
+            if getattr(self, name) is not None and not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.centre_window < 1 or self.centre_window % 2 == 0:
             raise ValueError(f"centre_window must be an odd number >= 1, got {self.centre_window}")
         if self.depth_filter_window < 1 or self.depth_filter_window % 2 == 0:
@@ -383,24 +392,18 @@ blocks and dominoes suffer). So did 1300
 steps (windows from step 700, densification until 1000): 26.52 dB, segmentation means 83.7
 instead of 87.4 at default and 65.4 instead of 73.1 at heavy mask noise."""
 
-SURFACE_PRIORS: dict[str, float | bool] = {
-    "init_thickness": 0.1,
-    "thickness_weight": 1.0,
-    "centre_weight": 10.0,
-    "planar_depth": True,
-}
-"""The overrides of ``--surface-priors`` (off by default): discs centred on the observed depth,
-rendering the depth of their planes. On the 40-view 320x240 synthetic scene with noise-free
-depth (fast preset, one run each, ``benchmarks/surface_priors.py``): the opaque centres' median
-distance to the true surfaces falls from 19.8 to 1.4 mm, held-out depth MAE from 10.2 to
-7.7 mm, held-out PSNR 26.8 -> 26.9 dB. Without ``planar_depth`` the discs sit as close
-(2.0 mm) but render 16.6 mm depth error: each splat's centre depth over its whole footprint
-misses slanted surfaces (the floor at a grazing angle) more for thin wide discs than for blobs.
-Cost: 1.25x the reconstruction's wall time (interleaved A/B, benchmarks/README "Surfaces"). Off
-by default: on held-out segmentation layouts the 3D labels are 1.3-5.3 mIoU lower at every
-noise level; small objects lose most. Told apart on heavy layout 4: the disc shape alone keeps
-the labels; ``planar_depth`` and the centre pull on discs cost them (benchmarks/README "Surface
-priors and segmentation", ``results/surface_components.json``)."""
+SURFACE_PRIORS: dict[str, float | bool] = {"planar_depth": True, "centre_from": 0}
+"""The overrides of ``--surface-priors`` (tight surfaces, off by default): the centre pull from
+the first step, not only after densification, and each flat Gaussian's depth rendered as its
+plane's. The default already reconstructs discs (``init_thickness``) kept thin
+(``thickness_weight``) and pulled onto the observed depth after densification
+(``centre_weight``, ``centre_from``): centres ~1 cm from the surfaces. These overrides bring them
+within a few mm (noise-free 40-view 320x240 scene, fast preset, ``benchmarks/surface_priors.py``:
+median 1.4 mm, held-out depth MAE 7.7 mm) but cost segmentation: pulled during densification,
+small objects keep fewer opaque Gaussians and merge into their supports' clusters (heavy layout
+4: -7.9 mIoU, benchmarks/README "Surface priors and segmentation"). Without ``planar_depth``
+thin discs render their centre depth over their whole footprint, which misses slanted surfaces
+(the floor at a grazing angle). Cost: 1.25x the reconstruction's wall time."""
 
 REFINE_POSES: dict[str, str] = {"pose_refinement": "on"}
 """The override of ``--refine-poses``: poses are refined whatever the detection says (the same

@@ -218,7 +218,7 @@ class _Trainer:
         if cfg.thickness_weight > 0:
             log_scales = self.params["log_scales"]
             _add_grad(log_scales, cfg.thickness_weight * thickness_grad(log_scales))
-        if cfg.centre_weight > 0 and it >= cfg.centre_from:
+        if cfg.centre_weight > 0 and it >= cfg.pull_start:
             voxel = auto_voxel_size(self.extent, cfg)
             behind = None if cfg.centre_behind is None else cfg.centre_behind * voxel
             grad = centre_depth_grad(

@@ -45,6 +45,7 @@ PHOTOMETRIC_ONLY: dict[str, Any] = {
     "depth_weight": 0.0,
     "depth_filter_window": 1,
     "drop_flying_pixels": False,
+    "init_thickness": None,
     "thickness_weight": 0.0,
     "centre_weight": 0.0,
     "planar_depth": False,

@@ -1,6 +1,8 @@
 """Surface priors of the reconstruction: Gaussians as discs centred on the observed surfaces.
 
-Three pieces, each optional (:class:`~dcseg.reconstruct.config.ReconstructConfig`):
+Three pieces, each an option of :class:`~dcseg.reconstruct.config.ReconstructConfig`, all on by
+default (the pull from the end of densification; ``--surface-priors`` starts it at the first
+step and renders planar depth):
 
 - :func:`disc_frames` starts every Gaussian as a disc in the plane of its neighbours
   (``init_thickness``) instead of an isotropic blob;

@@ -58,7 +58,9 @@ def test_reconstruct_writes_ply_and_report(
         "read", "registration", "init", "sensor", "train", "eval", "write"
     }  # fmt: skip
     assert report["config"]["iterations"] == 8 and report["seed"] == 1
-    assert report["config"]["centre_weight"] == 0.0  # surface priors are opt-in
+    # discs pulled onto the surfaces after densification by default; tight surfaces opt-in
+    assert report["config"]["centre_weight"] == 10.0 and report["config"]["init_thickness"] == 0.1
+    assert report["config"]["centre_from"] is None and report["config"]["planar_depth"] is False
     assert report["config"]["depth_filter_window"] == 5
     # 24 x 18 depth maps hold too few whole windows to measure noise on (then None)
     assert report["depth_noise_at_1m"] is None or report["depth_noise_at_1m"] >= 0.0
@@ -121,12 +123,12 @@ def test_run_flag_puts_the_priors_in_the_job_config() -> None:
     run = ["run", "cap", "--out", "o", "--agnostic-masks", "a", "--semantic-masks", "s"]
     run += ["--vocabulary", "v"]
     cfg = job_config(build_parser().parse_args([*run, "--surface-priors"])).pipeline
-    assert cfg.reconstruct.centre_weight == SURFACE_PRIORS["centre_weight"]
-    assert cfg.reconstruct.init_thickness == SURFACE_PRIORS["init_thickness"]
+    assert cfg.reconstruct.centre_from == SURFACE_PRIORS["centre_from"] == 0
+    assert cfg.reconstruct.pull_start == 0
     assert cfg.reconstruct.planar_depth is True
     plain = job_config(build_parser().parse_args(run)).pipeline
-    assert plain.reconstruct.centre_weight == 0.0 and plain.reconstruct.init_thickness is None
-    assert plain.reconstruct.planar_depth is False
+    assert plain.reconstruct.centre_from is None and plain.reconstruct.planar_depth is False
+    assert plain.reconstruct.pull_start == plain.reconstruct.densify_until == 1200
 
 
 def test_refine_poses_flag_refines_and_reports_the_poses(

@@ -208,7 +208,17 @@ def _fitted_from_displaced(cfg: ReconstructConfig) -> Gaussians:
 SMALL = replace(
     FAST, iterations=60, train_downscale=1, full_res_from=None, init_pixel_stride=1,
     densify_until=0, means_lr_init=2e-3, means_lr_final=2e-3, max_init_points=3000,
+    init_thickness=None, thickness_weight=0.0, centre_weight=0.0,  # blobs, no priors
 )  # fmt: skip
+
+
+def test_the_pull_starts_after_densification_by_default() -> None:
+    """Discs, thin and pulled onto the surfaces by default, from the end of densification
+    (earlier, the pull leaves small objects few opaque Gaussians)."""
+    for preset in (FAST, ReconstructConfig()):
+        assert preset.init_thickness == 0.1 and preset.centre_weight == 10.0
+        assert preset.centre_from is None and preset.pull_start == preset.densify_until
+    assert replace(FAST, centre_from=0).pull_start == 0
 
 
 def test_surface_priors_pull_centres_onto_the_surfaces_and_flatten_them() -> None:

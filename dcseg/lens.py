@@ -31,6 +31,7 @@ from dcseg.types import AgnosticMasks, Frame, Intrinsics, Lens, SemanticMap, Und
 __all__ = [
     "from_records",
     "lens_problem",
+    "nearest_pixels",
     "of_frames",
     "pinhole_for",
     "records",
@@ -81,10 +82,11 @@ def undistortion(lens: Lens, source: Intrinsics) -> Undistortion:
     return Undistortion(lens, source, pinhole_for(lens, source))
 
 
-@lru_cache(maxsize=8)
-def _maps(u: Undistortion, width: int, height: int) -> tuple[NDArray[Any], ...]:
+@lru_cache(maxsize=4)
+def _maps(u: Undistortion, width: int, height: int) -> tuple[NDArray[np.float32], ...]:
     """Where each pixel of the undistorted image lies in the distorted one, at ``width`` x
-    ``height``: ``(x, y, nearest row, nearest column)`` (read-only; the last two int32)."""
+    ``height``: ``(x, y)``, read-only (8 bytes a pixel; a capture has one or a few cameras,
+    and masks are read at the working size: a few entries suffice)."""
     source = u.source.scaled(width, height).matrix()
     pinhole = u.pinhole.scaled(width, height).matrix()
     coefficients = np.asarray(u.lens.coefficients, dtype=np.float64)
@@ -95,17 +97,22 @@ def _maps(u: Undistortion, width: int, height: int) -> tuple[NDArray[Any], ...]:
         )
     else:
         x, y = cv2.initUndistortRectifyMap(source, coefficients, None, pinhole, size, cv2.CV_32FC1)
-    rows = np.clip(np.floor(y + 0.5), 0, height - 1).astype(np.int32)
-    cols = np.clip(np.floor(x + 0.5), 0, width - 1).astype(np.int32)
-    out = (np.asarray(x, np.float32), np.asarray(y, np.float32), rows, cols)
+    out = (np.asarray(x, np.float32), np.asarray(y, np.float32))
     for array in out:
         array.flags.writeable = False
     return out
 
 
+def nearest_pixels(u: Undistortion, width: int, height: int) -> tuple[NDArray[np.int32], ...]:
+    """``(rows, columns)`` of the distorted pixel nearest each undistorted one."""
+    x, y = _maps(u, width, height)
+    rows = np.clip(np.floor(y + 0.5), 0, height - 1).astype(np.int32)
+    return rows, np.clip(np.floor(x + 0.5), 0, width - 1).astype(np.int32)
+
+
 def remap_linear(image: NDArray[Any], u: Undistortion) -> NDArray[Any]:
     """``image`` (distorted, any size of ``u``'s aspect) undistorted, bilinearly."""
-    x, y, _, _ = _maps(u, int(image.shape[1]), int(image.shape[0]))
+    x, y = _maps(u, int(image.shape[1]), int(image.shape[0]))
     return np.asarray(
         cv2.remap(image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
         dtype=image.dtype,
@@ -114,7 +121,7 @@ def remap_linear(image: NDArray[Any], u: Undistortion) -> NDArray[Any]:
 
 def remap_nearest(image: NDArray[Any], u: Undistortion) -> NDArray[Any]:
     """``image`` undistorted by nearest neighbour (depth, confidence, masks, class maps)."""
-    _, _, rows, cols = _maps(u, int(image.shape[1]), int(image.shape[0]))
+    rows, cols = nearest_pixels(u, int(image.shape[1]), int(image.shape[0]))
     return np.ascontiguousarray(image[rows, cols])
 
 

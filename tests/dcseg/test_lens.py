@@ -16,6 +16,7 @@ from dcseg.lens import (
     _maps,
     from_records,
     lens_problem,
+    nearest_pixels,
     records,
     remap_linear,
     remap_nearest,
@@ -67,7 +68,8 @@ def test_maps_follow_colmaps_camera_models(model: str, params: list[float], lens
     """Each undistorted pixel samples the distorted image where COLMAP projects its ray, and
     every pixel lies inside the distorted image (no blank border)."""
     u = undistortion(lens, source_of(model, params))
-    x, y, rows, cols = _maps(u, W, H)
+    x, y = _maps(u, W, H)
+    rows, _ = nearest_pixels(u, W, H)
     camera = pycolmap.Camera(model=model, width=W, height=H, params=params)
     projected = camera.img_from_cam(pixel_rays(u.pinhole))
     assert projected is not None
@@ -83,8 +85,8 @@ def test_maps_at_a_working_size_scale_both_cameras() -> None:
     """At half the size the maps are the full-size ones in half-size pixels."""
     model, params, lens = MODELS[2]
     u = undistortion(lens, source_of(model, params))
-    full_x, full_y, _, _ = _maps(u, W, H)
-    half_x, half_y, _, _ = _maps(u, W // 2, H // 2)
+    full_x, full_y = _maps(u, W, H)
+    half_x, half_y = _maps(u, W // 2, H // 2)
     # pixel (i, j) at half size is the point (2i + 0.5, 2j + 0.5) at full size
     probe = full_x[1::2, 1::2], full_y[1::2, 1::2]
     np.testing.assert_allclose((half_x + 0.5) * 2 - 0.5, probe[0], atol=0.6)
@@ -100,7 +102,8 @@ def linear_image(u: Undistortion) -> NDArray[np.uint8]:
 def test_colour_is_resampled_bilinearly_depth_by_nearest() -> None:
     model, params, lens = MODELS[2]
     u = undistortion(lens, source_of(model, params))
-    x, y, rows, cols = _maps(u, W, H)
+    x, y = _maps(u, W, H)
+    rows, cols = nearest_pixels(u, W, H)
     rgb = remap_linear(linear_image(u), u)
     assert rgb.dtype == np.uint8 and rgb.shape == (H, W, 3)
     np.testing.assert_allclose(rgb[..., 0], np.clip(x * 3, 0, None), atol=1.0)
@@ -116,7 +119,7 @@ def test_masks_and_class_maps_follow_their_frames() -> None:
     an undistortion keep their masks; a mask only in the cropped border is dropped."""
     model, params, lens = MODELS[2]
     u = undistortion(lens, source_of(model, params))
-    _, _, rows, cols = _maps(u, W, H)
+    rows, cols = nearest_pixels(u, W, H)
     dense = np.zeros((3, H, W), dtype=bool)
     dense[0, 10:30, 20:40] = True
     dense[1, :, :] = True

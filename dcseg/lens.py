@@ -13,7 +13,8 @@ Masks and class maps made on the distorted images are resampled the same way (ne
 neighbour) when a job reads them (:func:`undistort_agnostic`, :func:`undistort_semantic`).
 ``run.json`` records every frame's undistortion (:func:`records`, read back by
 :func:`from_records`), so that re-classifying a run with new masks resamples them too. Per-view
-outputs (label maps) are in the pinhole cameras recorded there.
+outputs (``labels/``, ``masks/``) are brought back onto the capture's own distorted images
+(:func:`redistort_labels`), so that they overlay the images the user has.
 """
 
 from __future__ import annotations
@@ -33,8 +34,10 @@ __all__ = [
     "lens_problem",
     "nearest_pixels",
     "of_frames",
+    "of_record",
     "pinhole_for",
     "records",
+    "redistort_labels",
     "remap_linear",
     "remap_nearest",
     "undistort",
@@ -125,6 +128,45 @@ def remap_nearest(image: NDArray[Any], u: Undistortion) -> NDArray[Any]:
     return np.ascontiguousarray(image[rows, cols])
 
 
+@lru_cache(maxsize=4)
+def _inverse(u: Undistortion, width: int, height: int) -> tuple[NDArray[Any], ...]:
+    """For each pixel of the distorted image at ``width`` x ``height``: ``(rows, columns)`` of
+    the nearest undistorted pixel, and ``[H, W]`` bool whether it lies inside the undistorted
+    image (read-only)."""
+    source = u.source.scaled(width, height).matrix()
+    pinhole = u.pinhole.scaled(width, height).matrix()
+    coefficients = np.asarray(u.lens.coefficients, dtype=np.float64)
+    v, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    points = np.stack([x.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+    if u.lens.model == "fisheye":
+        mapped = cv2.fisheye.undistortPoints(points, source, coefficients.reshape(4, 1), P=pinhole)
+    else:
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6)
+        mapped = cv2.undistortPoints(
+            points, source, coefficients, R=None, P=pinhole, criteria=criteria
+        )
+    mapped = np.asarray(mapped, dtype=np.float64).reshape(height, width, 2)
+    cols, rows = np.floor(mapped[..., 0] + 0.5), np.floor(mapped[..., 1] + 0.5)
+    inside = (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
+    out = (
+        np.clip(rows, 0, height - 1).astype(np.int32),
+        np.clip(cols, 0, width - 1).astype(np.int32),
+        inside,
+    )
+    for array in out:
+        array.flags.writeable = False
+    return out
+
+
+def redistort_labels(labels: NDArray[Any], u: Undistortion) -> NDArray[Any]:
+    """A per-pixel id map of the undistorted frame (any size of its aspect) brought back onto
+    the distorted image's pixels by nearest neighbour, -1 where the undistorted view does not
+    reach (so that label maps overlay the capture's own images)."""
+    height, width = (int(v) for v in labels.shape[:2])
+    rows, cols, inside = _inverse(u, width, height)
+    return np.where(inside, labels[rows, cols], -1).astype(labels.dtype)
+
+
 def undistort(
     rgb: NDArray[np.uint8], depth: NDArray[np.float32], u: Undistortion
 ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
@@ -186,6 +228,11 @@ def from_records(entries: Iterable[Mapping[str, Any]]) -> dict[str, Undistortion
         u = Undistortion(lens, source, pinhole)
         out.update((str(name), u) for name in entry["frames"])
     return out
+
+
+def of_record(record: Mapping[str, Any]) -> dict[str, Undistortion]:
+    """The undistorted frames of a run's ``run.json`` record (``capture.undistortion``)."""
+    return from_records(record.get("capture", {}).get("undistortion", []))
 
 
 def _intrinsics(values: list[float], width: int, height: int) -> Intrinsics:

@@ -52,9 +52,10 @@ from dcseg.io.semantic import (
     write_semantic_png,
     write_vocabulary,
 )
+from dcseg.lens import of_record, redistort_labels, remap_nearest
 from dcseg.pipeline import TrainedScene
 from dcseg.segmentation import Labels, Segmentation
-from dcseg.types import SemanticMap, Vocabulary
+from dcseg.types import SemanticMap, Undistortion, Vocabulary
 
 PREVIEW_VIEWS = 4
 
@@ -100,6 +101,7 @@ def write_outputs(
     previews: Sequence[tuple[str, NDArray[np.uint8]]],
     *,
     size: tuple[int, int] | None = None,
+    undistorted: Mapping[str, Undistortion] | None = None,
 ) -> None:
     """Write every export of a segmentation into ``out`` (an existing, empty folder).
 
@@ -107,7 +109,8 @@ def write_outputs(
     ``masks/``; the cluster level stays in the PLY's ``cluster_id`` (and ``state/clusters.npz``,
     :func:`save_clusters`). ``size`` is the capture's ``(width, height)``: per-view masks and
     labels are brought to it with nearest neighbour when the views were trained at a lower
-    resolution (None = as is).
+    resolution (None = as is); views named in ``undistorted`` (frames whose lens distortion was
+    removed when read) are then brought back onto the capture's distorted images.
     """
     g = trained.gaussians
     write_gaussians_ply(out / "scene.ply", g)
@@ -118,7 +121,7 @@ def write_outputs(
         "cluster_id": _one_based(segmentation.clustering.labels),
     }
     write_gaussians_ply(out / "scene_labelled.ply", g, extra=extra)
-    visible = _write_view_maps(out, segmentation, size)
+    visible = _write_view_maps(out, segmentation, size, undistorted or {})
     means = g.means.detach().cpu().numpy()
     records = instance_records(
         means, objects.ids, objects.classes, objects.scores, visible, vocabulary
@@ -139,7 +142,10 @@ def _one_based(labels: NDArray[np.int64]) -> NDArray[np.int64]:
 
 
 def _write_view_maps(
-    out: Path, segmentation: Segmentation, size: tuple[int, int] | None
+    out: Path,
+    segmentation: Segmentation,
+    size: tuple[int, int] | None,
+    undistorted: Mapping[str, Undistortion],
 ) -> NDArray[np.int64]:
     """Write every view's instance and class maps (at ``size`` if given), one view at a time;
     returns ``[n]`` the number of views in which each object covers at least one pixel."""
@@ -151,6 +157,9 @@ def _write_view_maps(
         seen[present[present < n]] += 1
         if size is not None:
             ids, classes = resize_nearest(ids, size), resize_nearest(classes, size)
+        if name in undistorted:
+            lens = undistorted[name]
+            ids, classes = redistort_labels(ids, lens), redistort_labels(classes, lens)
         write_view_maps(out, name, ids, classes)
     return seen
 
@@ -233,12 +242,18 @@ def load_run(run: Path, memory_mb: int = 0) -> SavedRun:
     return SavedRun(trained, semantic, vocabulary, previews, record)
 
 
+def _undistortions(run: Path) -> dict[str, Undistortion]:
+    """The frames of a run whose lens distortion was removed (``run.json``), by name."""
+    return of_record(json.loads((run / "run.json").read_text(encoding="utf-8")))
+
+
 def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = None) -> Labels:
     """Read a run's exported labels back: ``semantic_id`` and ``instance_id`` per Gaussian and
     ``labels/`` maps.
 
     ``size``: the views' ``(width, height)``; maps written at the capture's resolution are
-    brought back to it with nearest neighbour (exact for the integer factors of a plan).
+    brought back to it with nearest neighbour (exact for the integer factors of a plan), maps
+    written onto distorted images (``run.json`` ``capture.undistortion``) undistorted first.
     """
     path = run / "scene_labelled.ply"
     try:
@@ -248,6 +263,8 @@ def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = 
     except (OSError, ValueError, KeyError) as error:
         raise InputError.single(str(path), f"cannot read semantic_id: {error}") from None
     maps = {n: read_image(run / "labels" / f"{n}.png").astype(np.int32) - 1 for n in names}
+    undistorted = _undistortions(run)
+    maps = {n: remap_nearest(m, undistorted[n]) if n in undistorted else m for n, m in maps.items()}
     if size is not None:
         maps = {n: resize_nearest(m, size) for n, m in maps.items()}
     return Labels(semantic_ids, maps, np.where(one_based > 0, one_based - 1, -1))

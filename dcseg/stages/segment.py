@@ -38,6 +38,7 @@ FROM_TRAIN_SKIPPED = ("semantic", "vocabulary.json", "clusters.npz")
 def segment(run: StageRun) -> StageResult:
     """Cluster, classify, evaluate and write the run folder."""
     from dcseg.io.run_output import save_clusters, save_semantic, write_outputs
+    from dcseg.lens import of_record
     from dcseg.pipeline import segment_scene
 
     saved = _trained(run)
@@ -56,7 +57,16 @@ def segment(run: StageRun) -> StageResult:
         metrics = None if gt is None else evaluate(saved, segmentation.labels(), gt, cfg, run.out)
     with run.clock.phase("write"):
         size = _output_size(saved)
-        write_outputs(run.out, trained, segmentation, vocabulary, saved.previews, size=size)
+        lenses = of_record(saved.record)  # maps go back onto distorted images
+        write_outputs(
+            run.out,
+            trained,
+            segmentation,
+            vocabulary,
+            saved.previews,
+            size=size,
+            undistorted=lenses,
+        )
         link_tree(run.folder("train") / "state", run.out / "state", skip=FROM_TRAIN_SKIPPED)
         if len(vocabulary):  # a class-agnostic run's state holds no class masks
             save_semantic(run.out / "state", saved.semantic, vocabulary)
@@ -92,7 +102,7 @@ def _with_semantic(run: StageRun, saved: SavedRun) -> SavedRun:
     ``assign.unlabelled_id`` names, if any, is unlabelled in either."""
     from dcseg.io.folders import FrameSelection
     from dcseg.io.semantic import read_semantic_maps, read_vocabulary, without_class
-    from dcseg.lens import from_records, undistort_semantic
+    from dcseg.lens import of_record, undistort_semantic
 
     unlabelled = run.config.pipeline.assign.unlabelled_id
     masks, vocabulary_file = run.inputs.semantic_masks, run.inputs.vocabulary
@@ -109,8 +119,7 @@ def _with_semantic(run: StageRun, saved: SavedRun) -> SavedRun:
     semantic = read_semantic_maps(
         masks, vocabulary, size=view_size(saved), frames=frames, unlabelled=unlabelled
     )
-    undistorted = from_records(saved.record.get("capture", {}).get("undistortion", []))
-    semantic = undistort_semantic(semantic, undistorted)
+    semantic = undistort_semantic(semantic, of_record(saved.record))
     return replace(saved, semantic=semantic, vocabulary=vocabulary)
 
 

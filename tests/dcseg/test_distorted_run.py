@@ -18,10 +18,12 @@ from numpy.typing import NDArray
 from dcseg.cli import main
 from dcseg.config import JobConfig, preset
 from dcseg.io.captures import read_capture
+from dcseg.io.images import read_image
 from dcseg.io.masks import decode_masks, masks_from_dense, read_agnostic_masks, write_agnostic_json
 from dcseg.io.run_output import load_run
 from dcseg.io.semantic import read_semantic_maps, read_vocabulary, write_semantic_png
-from dcseg.jobs import RunInputs, run_job
+from dcseg.jobs import RunInputs, evaluate_job, run_job
+from dcseg.lens import of_record, remap_nearest
 from dcseg.types import Intrinsics, SemanticMap
 from tests.dcseg.io.layouts import RgbdScene
 from tests.dcseg.io.test_captures_colmap import write_colmap
@@ -143,3 +145,27 @@ def resample(classes: NDArray[Any], k_new: NDArray[Any], k: Intrinsics) -> NDArr
     rows = np.clip(np.floor(y + 0.5), 0, k.height - 1).astype(np.int64)
     cols = np.clip(np.floor(x + 0.5), 0, k.width - 1).astype(np.int64)
     return np.asarray(classes[rows, cols])
+
+
+def test_label_maps_overlay_the_distorted_images(runs: tuple[Path, Path]) -> None:
+    """``labels/`` is written onto the capture's own (distorted) pixels: it agrees with the
+    distorted class masks given better than it would left in the undistorted camera; and read
+    back (``evaluate_job``), it scores what the run scored."""
+    scene, run = runs
+    vocabulary = read_vocabulary(scene / "vocabulary.txt")
+    given = read_semantic_maps(run.parent / "semantic", vocabulary)
+    lenses = of_record(json.loads((run / "run.json").read_text()))
+    direct, left_undistorted = [], []
+    for name, u in lenses.items():
+        labels = read_image(run / "labels" / f"{name}.png").astype(np.int64) - 1
+        truth = np.asarray(given[name].classes)
+        labelled = labels >= 0
+        direct.append(float((labels == truth)[labelled].mean()))
+        undistorted = remap_nearest(labels, u)
+        left_undistorted.append(float((undistorted == truth)[undistorted >= 0].mean()))
+    assert len(direct) == 6
+    assert np.mean(direct) > np.mean(left_undistorted) + 0.02, (direct, left_undistorted)
+    metrics = json.loads((run / "metrics.json").read_text())
+    again = evaluate_job(run, scene / "gt" / "points.ply")
+    projection = again["dcseg_projection"]["miou"]
+    assert projection == pytest.approx(metrics["dcseg_projection"]["miou"], abs=0.02)

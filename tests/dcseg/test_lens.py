@@ -18,6 +18,7 @@ from dcseg.lens import (
     lens_problem,
     nearest_pixels,
     records,
+    redistort_labels,
     remap_linear,
     remap_nearest,
     undistort_agnostic,
@@ -160,3 +161,27 @@ def test_lens_problems(lens: Lens, reason: str) -> None:
     problem = lens_problem(lens)
     assert problem is not None and problem.startswith(reason)
     assert lens_problem(Lens("opencv", (0.1, 0.0, 0.0, 0.0, 0.01))) is None
+
+
+@pytest.mark.parametrize(("model", "params", "lens"), MODELS, ids=[m[0] for m in MODELS])
+def test_label_maps_go_back_onto_the_distorted_pixels(
+    model: str, params: list[float], lens: Lens
+) -> None:
+    """Each distorted pixel takes the label of the undistorted pixel its ray (COLMAP's
+    ``cam_from_img``) falls in; -1 where the undistorted view does not reach."""
+    u = undistortion(lens, source_of(model, params))
+    labels = np.arange(H * W, dtype=np.int64).reshape(H, W)
+    back = redistort_labels(labels, u)
+    camera = pycolmap.Camera(model=model, width=W, height=H, params=params)
+    v, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    rays = camera.cam_from_img(np.stack([x.ravel(), v.ravel()], axis=1) + 0.5)
+    assert rays is not None
+    p = u.pinhole
+    cols = np.floor(np.asarray(rays)[:, 0] * p.fx + p.cx + 0.5).reshape(H, W)
+    rows = np.floor(np.asarray(rays)[:, 1] * p.fy + p.cy + 0.5).reshape(H, W)
+    inside = (cols >= 0) & (cols < W) & (rows >= 0) & (rows < H)
+    expected = np.where(inside, rows * W + cols, -1)
+    assert (back == expected).mean() > 0.99  # ties at pixel borders may round either way
+    assert abs(int((back < 0).sum()) - int((~inside).sum())) <= 3
+    again = remap_nearest(back, u)  # and undistorted again: most pixels come home
+    assert (again == labels).mean() > 0.8

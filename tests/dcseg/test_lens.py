@@ -5,12 +5,14 @@ the record ``run.json`` keeps."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pycolmap
 import pytest
 from numpy.typing import NDArray
 
+from dcseg.errors import InputError
 from dcseg.io.masks import decode_masks, masks_from_dense
 from dcseg.lens import (
     _maps,
@@ -185,3 +187,22 @@ def test_label_maps_go_back_onto_the_distorted_pixels(
     assert abs(int((back < 0).sum()) - int((~inside).sum())) <= 3
     again = remap_nearest(back, u)  # and undistorted again: most pixels come home
     assert (again == labels).mean() > 0.8
+
+
+def test_a_lens_opencv_cannot_use_is_a_problem_of_its_frames(tmp_path: Path) -> None:
+    """A reader that hands over a malformed lens gets a problem naming where it was stated,
+    not an OpenCV error."""
+    from dcseg.config import CaptureOptions
+    from dcseg.io.captures.common import Camera, FrameSpec, Listing, load_capture
+    from dcseg.io.images import write_image
+
+    write_image(tmp_path / "a.png", np.zeros((H, W, 3), np.uint8))
+    write_image(tmp_path / "a_depth.png", np.ones((H, W), np.uint16))
+    lens = Lens("opencv", (0.1, 0.2, 0.3), "calib.txt")
+    camera = Camera(50.0, 50.0, 31.5, 23.5, None, "calib.txt", lens)
+    spec = FrameSpec("a", tmp_path / "a.png", tmp_path / "a_depth.png", np.eye(4), camera, "p")
+    with pytest.raises(InputError) as info:
+        load_capture(Listing(specs=[spec]), tmp_path, "test", CaptureOptions())
+    assert str(info.value.problems[0]) == (
+        "calib.txt: opencv lens needs 4 or 5 or 8 coefficients, got 3"
+    )

@@ -28,7 +28,7 @@ from dcseg.io.captures.depth_files import read_npy, register_depth
 from dcseg.io.exr import read_exr_depth
 from dcseg.io.images import display_path, read_image, resize_area, resize_nearest
 from dcseg.io.lzfse_buffers import read_lzfse_array
-from dcseg.lens import undistort, undistortion
+from dcseg.lens import lens_problem, undistort, undistortion
 from dcseg.types import (
     Capture,
     DepthSource,
@@ -320,6 +320,9 @@ def _load_frame(
     undistorted = None
     lens = spec.camera.lens
     if lens is not None and not lens.is_identity:
+        problem = lens_problem(lens)
+        if problem is not None:
+            return None, [*problems, Problem(lens.source, problem)]
         undistorted = undistortion(lens, intrinsics)
         rgb, depth = undistort(rgb, depth, undistorted)
         intrinsics = undistorted.pinhole

@@ -20,7 +20,7 @@ outputs (``labels/``, ``masks/``) are brought back onto the capture's own distor
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import Any
 
 import cv2
@@ -179,16 +179,13 @@ def undistort_agnostic(
 ) -> dict[str, AgnosticMasks]:
     """Masks made on distorted images, resampled like their frames (masks left with no pixel
     are dropped); frames without an undistortion keep theirs."""
-    from dcseg.io.masks import decode_masks, masks_from_dense
+    from dcseg.io.masks import map_masks
 
     out: dict[str, AgnosticMasks] = {}
     for name, m in masks.items():
         u = frames.get(name)
-        if u is None or not len(m):
-            out[name] = m
-            continue
-        dense = np.stack([remap_nearest(d, u) for d in decode_masks(m)])
-        out[name] = masks_from_dense(name, dense, m.source)
+        size = (m.width, m.height)
+        out[name] = m if u is None else map_masks(m, partial(remap_nearest, u=u), size)
     return out
 
 
@@ -199,8 +196,7 @@ def undistort_semantic(
     out: dict[str, SemanticMap] = {}
     for name, m in maps.items():
         u = frames.get(name)
-        classes = m.classes if u is None else remap_nearest(np.asarray(m.classes), u)
-        out[name] = m if u is None else SemanticMap(name, classes, m.source)
+        out[name] = m if u is None else SemanticMap(name, remap_nearest(m.classes, u), m.source)
     return out
 
 

@@ -172,12 +172,24 @@ def resize_masks(m: AgnosticMasks, size: tuple[int, int]) -> AgnosticMasks:
         raise ValueError(f"size must be positive, got {size}")
     if (m.width, m.height) == (width, height):
         return m
+    return map_masks(m, lambda mask: resize_nearest(mask, size), size)
+
+
+def map_masks(
+    m: AgnosticMasks,
+    resample: Callable[[NDArray[np.bool_]], NDArray[np.bool_]],
+    size: tuple[int, int],
+) -> AgnosticMasks:
+    """Every mask through ``resample`` (a dense ``[H, W]`` bool map to one of ``size``,
+    ``(width, height)``), decoding one mask at a time to bound memory; masks left with no pixel
+    are dropped."""
     rles = []
     for rle in m.rles:
-        small = resize_nearest(_decode_rle(rle), size)
-        if small.any():
-            rles.append(_encode(small))
+        mapped = resample(_decode_rle(rle))
+        if mapped.any():
+            rles.append(_encode(mapped))
     _log_dropped(m.name, len(m.rles) - len(rles))
+    width, height = size
     return AgnosticMasks(m.name, height, width, tuple(rles), m.source)
 
 

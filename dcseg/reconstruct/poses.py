@@ -136,10 +136,32 @@ class PoseCorrections(AdamStepping):
 
 
 def pose_change(before: NDArray[np.float64], after: NDArray[np.float64]) -> tuple[float, float]:
-    """``(degrees, metres)``: how far ``after`` turns and moves the camera of ``before``."""
+    """``(degrees, metres)``: how far ``after`` turns and moves the camera of ``before``.
+
+    The angle is ``atan2`` of the relative rotation's skew part over its trace part: exact for
+    rotations, and for poses stored with slightly non-orthonormal rotations (KinectFusion's
+    7-Scenes poses: 1.6e-4 off) it stays near their true angle where ``arccos`` of the trace
+    alone would read a degree.
+
+    Example:
+        >>> turn = np.eye(4)
+        >>> turn[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+        >>> [round(v, 6) for v in pose_change(np.eye(4), turn)]
+        [90.0, 0.0]
+        >>> skewed = np.diag([0.99984, 0.99984, 0.99984, 1.0])  # no turn at all
+        >>> pose_change(skewed, np.eye(4))[0] < 0.01
+        True
+    """
     relative = after[:3, :3] @ before[:3, :3].T
-    cos = float(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0))
-    return float(np.degrees(np.arccos(cos))), float(np.linalg.norm(after[:3, 3] - before[:3, 3]))
+    skew = np.array(
+        [
+            relative[2, 1] - relative[1, 2],
+            relative[0, 2] - relative[2, 0],
+            relative[1, 0] - relative[0, 1],
+        ]
+    )
+    angle = np.arctan2(0.5 * np.linalg.norm(skew), 0.5 * (np.trace(relative) - 1.0))
+    return float(np.degrees(angle)), float(np.linalg.norm(after[:3, 3] - before[:3, 3]))
 
 
 def with_poses(capture: Capture, poses: Mapping[str, NDArray[np.float64]]) -> Capture:

@@ -1,7 +1,8 @@
 """What the reconstruction's sensor checks measure, without reconstructing: pose misalignment
-(:mod:`dcseg.reconstruct.pose_check`) and colour/depth misregistration
-(:mod:`dcseg.reconstruct.registration`) on synthetic scenes with and without the effect, and
-on real captures.
+(:mod:`dcseg.reconstruct.pose_check`), colour/depth misregistration
+(:mod:`dcseg.reconstruct.registration`) and wrong intrinsics
+(:mod:`dcseg.reconstruct.calibration`, on the registered frames) on synthetic scenes with and
+without the effect, and on real captures.
 
     python -m benchmarks.bench_detect --seeds 0 1 2 3 --out benchmarks/results/detect.json \\
         --variant exact='{}' --variant pose_0.1='{"pose_error_deg": 0.1, "pose_error_m": 0.002}' \\
@@ -10,7 +11,8 @@ on real captures.
         --capture /work/shared/data/replica_room0_small=600,600,599.5,339.5
 
 Each variant is a JSON object of :class:`dcseg.synth.SynthConfig` fields on top of
-``--frames`` and ``--size``; each capture is ``PATH=fx,fy,cx,cy``. Per scene the training
+``--frames`` and ``--size`` (plus ``given_focal_scale`` / ``given_principal_shift``: the
+intrinsics handed over are that wrong); each capture is ``PATH=fx,fy,cx,cy``. Per scene the training
 frames (every 8th held out, as ``reconstruct`` does) are measured: the depth agreement ratio
 and whether ``auto`` would refine the poses, the estimated shift, its gain and whether
 ``auto`` would apply it, and the seconds each check took.
@@ -22,10 +24,11 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from dcseg.reconstruct import pose_check, registration
+from dcseg.reconstruct import calibration, pose_check, registration
 from dcseg.reconstruct.sensor import sensor_report
 from dcseg.reconstruct.views import split_frames
 from dcseg.types import Frame
@@ -39,6 +42,10 @@ def measure(frames: tuple[Frame, ...]) -> dict[str, Any]:
     middle = time.perf_counter()
     shift = registration.estimate(train)
     end = time.perf_counter()
+    applied = registration.decide("auto", (0, 0), shift)
+    intrinsics = calibration.estimate(registration.registered(train, applied))
+    fix = calibration.decide("auto", intrinsics)
+    done = time.perf_counter()
     return {
         "pose_ratio": None if poses is None else round(poses["ratio"], 4),
         "tilt_deg": None if poses is None else round(poses["tilt_deg"], 4),
@@ -46,8 +53,14 @@ def measure(frames: tuple[Frame, ...]) -> dict[str, Any]:
         "expected_from_noise_mm": None if poses is None else poses["expected_from_noise"] * 1000,
         "refine": pose_check.decide("auto", poses),
         "shift": shift,
-        "applied_shift": list(registration.decide("auto", (0, 0), shift)),
-        "seconds": {"sensor": round(middle - start, 3), "registration": round(end - middle, 3)},
+        "applied": applied.record(),
+        "intrinsics": intrinsics,
+        "intrinsics_applied": None if fix is None else asdict(fix.apply(train[0].intrinsics)),
+        "seconds": {
+            "sensor": round(middle - start, 3),
+            "registration": round(end - middle, 3),
+            "intrinsics": round(done - end, 3),
+        },
     }
 
 
@@ -61,12 +74,16 @@ def synthetic(args: argparse.Namespace) -> dict[str, Any]:
         fields: dict[str, Any] = {
             k: tuple(v) if isinstance(v, list) else v for k, v in given.items()
         }
+        scale = float(fields.pop("given_focal_scale", 1.0))
+        shift = fields.pop("given_principal_shift", (0.0, 0.0))
+        wrong = calibration.Correction(scale, (float(shift[0]), float(shift[1])), args.size)
         rows = []
         for seed in args.seeds:
             cfg = SynthConfig(
                 seed=seed, frames=args.frames, width=args.size[0], height=args.size[1], **fields
             )
-            row = {"seed": seed, **measure(generate_scene(cfg).capture.frames)}
+            frames = calibration.corrected(generate_scene(cfg).capture.frames, wrong)
+            row = {"seed": seed, **measure(frames)}
             print(json.dumps({"variant": name, **row}), flush=True)
             rows.append(row)
         out[name] = {"synth": json.loads(text), "rows": rows}
@@ -103,6 +120,7 @@ def main() -> int:
         "size": list(args.size),
         "pose_threshold": pose_check.THRESHOLD,
         "min_shift_gain": registration.MIN_GAIN,
+        "min_intrinsics_gain": calibration.MIN_GAIN,
         "captures": captures(args.capture),
         "variants": synthetic(args),
     }

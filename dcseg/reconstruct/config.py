@@ -108,6 +108,23 @@ class ReconstructConfig:
     pose_align_lr: float = option(2e-3, bounds=(1e-06, 0.1))
     """Starting rate of those alignment steps (decaying to a tenth)."""
 
+    # --- intrinsics (dcseg.reconstruct.calibration) ---
+    intrinsics_refinement: str = option(
+        "auto",
+        choices=("auto", "off"),
+        flag="--intrinsics-refinement",
+        help="wrong intrinsics (nominal values given for a calibrated sensor): auto = find "
+        "the focal length and principal point under which the frames' depth agrees across "
+        "views and use them when they clearly agree better",
+    )
+    """``auto``: the common focal scale and principal point shift under which pairs of training
+    frames viewing a few degrees apart agree best in depth
+    (:func:`dcseg.reconstruct.calibration.estimate`) correct every frame's intrinsics (trained,
+    held out and in the later stages) when they lower the disagreement by more than
+    :data:`~dcseg.reconstruct.calibration.MIN_GAIN`; ``off``: not estimated. Captures with a
+    calibrated lens (distortion given) and RGB-only captures keep theirs.
+    ``reconstruction.json`` reports it (``sensor.intrinsics``)."""
+
     # --- colour/depth registration (dcseg.reconstruct.registration) ---
     depth_registration: str = option(
         "auto",
@@ -332,6 +349,10 @@ class ReconstructConfig:
             )
         if not self.depth_filter_k > 0:
             raise ValueError(f"depth_filter_k must be > 0, got {self.depth_filter_k}")
+        if self.intrinsics_refinement not in ("auto", "off"):
+            raise ValueError(
+                f"intrinsics_refinement must be auto or off, got {self.intrinsics_refinement!r}"
+            )
         if self.depth_registration not in ("auto", "off"):
             raise ValueError(
                 f"depth_registration must be auto or off, got {self.depth_registration!r}"

@@ -14,6 +14,7 @@ import torch
 from dcseg.devices import resolve_device
 from dcseg.errors import InputError
 from dcseg.gaussians import Gaussians
+from dcseg.io.poses import CameraFile
 from dcseg.lens import of_frames, records
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.poses import refinement_report
@@ -38,8 +39,9 @@ def reconstruct_scene(
     cfg: ReconstructConfig,
     device: torch.device,
     on_progress: StepProgress | None = None,
-) -> tuple[Gaussians, dict[str, Any]]:
-    """Fit Gaussians on ``device``; returns them and their report (metrics, frames, config)."""
+) -> tuple[Gaussians, dict[str, Any], CameraFile | None]:
+    """Fit Gaussians on ``device``; returns them, their report (metrics, frames, config) and
+    the cameras they were fitted to where these differ from the capture's (``poses.json``)."""
     from dcseg.reconstruct import fit_gaussians
     from dcseg.render import select_backend
 
@@ -51,7 +53,8 @@ def reconstruct_scene(
         capture, replace(cfg, backend=backend), device=device, on_progress=on_progress
     )
     report = _report(result, cfg, backend, device)
-    return result.gaussians, {**report, "undistortion": records(of_frames(capture.frames))}
+    report["undistortion"] = records(of_frames(capture.frames))
+    return result.gaussians, report, result.cameras
 
 
 def _finite(value: float) -> float | None:

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from torch import Tensor
 
 from dcseg.gaussians import Gaussians
+from dcseg.io.poses import CameraFile
 from dcseg.reconstruct.stepping import AdamStepping
 from dcseg.render import Camera
 from dcseg.types import Capture
@@ -171,6 +172,26 @@ def with_poses(capture: Capture, poses: Mapping[str, NDArray[np.float64]]) -> Ca
         for f in capture.frames
     )
     return replace(capture, frames=frames)
+
+
+def with_cameras(capture: Capture, cameras: CameraFile) -> Capture:
+    """``capture`` seen by the cameras a reconstruction fitted (``poses.json``): each frame's
+    depth registered onto its colour (:func:`dcseg.reconstruct.registration.registered_depth`),
+    its pose from the file and its intrinsics corrected
+    (:class:`dcseg.reconstruct.calibration.Correction`), each where the file has it."""
+    from dcseg.reconstruct.calibration import Correction
+    from dcseg.reconstruct.registration import Registration, registered_depth
+
+    reg = None if cameras.registration is None else Registration.of_record(cameras.registration)
+    fix = None if cameras.intrinsics is None else Correction.of_record(cameras.intrinsics)
+    frames = []
+    for frame in with_poses(capture, cameras.poses).frames:
+        if reg is not None and not reg.identity:
+            frame = replace(frame, depth=registered_depth(frame, reg))
+        if fix is not None:
+            frame = replace(frame, intrinsics=fix.apply(frame.intrinsics))
+        frames.append(frame)
+    return replace(capture, frames=tuple(frames))
 
 
 def change_stats(

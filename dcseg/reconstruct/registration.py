@@ -24,8 +24,8 @@ the parallax of a wrong baseline changes with depth and is only approximated.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
-from dataclasses import replace
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -63,6 +63,21 @@ the 169 shifts cost a gather each, and a 1200x680 frame has ~7000 edge pixels.""
 
 MIN_EDGE_PIXELS = 1000
 """``auto`` applies no shift measured on fewer depth-edge pixels."""
+
+SCALES = np.round(np.arange(0.80, 1.12 + 1e-9, 0.02), 4)
+"""Colour-over-depth focal length ratios searched (Kinect v1's uncalibrated pair: 0.9)."""
+
+PARALLAXES = np.arange(-40.0, 40.0 + 1e-9, 2.0)
+"""Parallaxes searched (pixels x metres: a 585 px focal length and a 6.8 cm baseline give 40)."""
+
+COARSE_LEADS = 8
+"""The best of the coarse scale-and-shift grid (4 px apart) refined to whole pixels: the
+right scale with a shift 2 px off can score below a wrong one's."""
+
+MIN_STEP_GAIN = 0.05
+"""A scale (and then a parallax) is kept only when it raises the edge score by more than this
+fraction over the whole-pixel shift alone: texture near depth edges gives every model a
+little."""
 
 
 def shifted(image: NDArray[Any], shift: tuple[int, int]) -> NDArray[Any]:
@@ -110,48 +125,168 @@ def gradient(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
     return magnitude / np.float32(mean) if mean > 0 else magnitude
 
 
-def edge_scores(frames: Sequence[Frame], radius: int = RADIUS) -> tuple[NDArray[np.float64], int]:
-    """``([2r+1, 2r+1], edge pixels)``: at ``[dy + r, dx + r]`` the mean colour gradient
-    (:func:`gradient`) at the depth edges moved by ``(dx, dy)``, over ``frames``; the edges
-    within ``radius`` of the border are left out so that every shift sees the same ones."""
-    r = radius
-    sums = np.zeros((2 * r + 1, 2 * r + 1))
-    count = 0
-    for frame in frames:
-        if frame.depth.shape != frame.rgb.shape[:2]:
-            continue
-        edges = depth_edges(frame.depth)
-        edges[:r], edges[-r:], edges[:, :r], edges[:, -r:] = False, False, False, False
-        ys, xs = np.nonzero(edges)
-        if len(ys) == 0:
-            continue
-        stride = -(-len(ys) // EDGES_PER_FRAME)  # ceil: at most EDGES_PER_FRAME
-        ys, xs = ys[::stride], xs[::stride]
-        g = gradient(frame.rgb)
-        for dy in range(-r, r + 1):
-            for dx in range(-r, r + 1):
-                sums[dy + r, dx + r] += float(g[ys + dy, xs + dx].sum())
-        count += len(ys)
-    return (sums / count if count else sums), count
+@dataclass(frozen=True)
+class Registration:
+    """Where a depth pixel ``(u, v)`` at depth ``z`` lies in the colour image:
+    ``u' = s (u - cx) + cx + dx + p / z``, ``v' = s (v - cy) + cy + dy`` (``s`` = ``scale``,
+    ``(dx, dy)`` = ``shift_px``, ``p`` = ``parallax``, ``(cx, cy)`` the principal point).
+    A colour camera whose focal length is ``s`` times the depth camera's, whose principal
+    point is ``(dx, dy)`` away and whose centre sits ``p / (s fx)`` metres along the depth
+    camera's x axis (Kinect v1: 525 vs 585 px, 2.5 cm; the 7-Scenes captures) gives this; a
+    calibrated registration that is off by a rotation gives a shift alone."""
+
+    scale: float = 1.0
+    shift_px: tuple[float, float] = (0.0, 0.0)
+    parallax: float = 0.0
+
+    @property
+    def identity(self) -> bool:
+        return self.scale == 1.0 and self.shift_px == (0.0, 0.0) and self.parallax == 0.0
+
+    @property
+    def integer_shift(self) -> tuple[int, int] | None:
+        """The shift when the registration is a whole-pixel shift alone, else None."""
+        dx, dy = self.shift_px
+        plain = self.scale == 1.0 and self.parallax == 0.0
+        return (int(dx), int(dy)) if plain and dx.is_integer() and dy.is_integer() else None
+
+    def baseline_m(self, fx: float) -> float:
+        """The colour camera's offset along the depth camera's x axis (metres), for a depth
+        focal length ``fx``."""
+        return self.parallax / (self.scale * fx)
+
+    def record(self) -> dict[str, Any]:
+        """The JSON form (``reconstruction.json``, ``poses.json``)."""
+        return {
+            "scale": round(self.scale, 5),
+            "shift_px": [round(v, 3) for v in self.shift_px],
+            "parallax_px_m": round(self.parallax, 4),
+        }
+
+    @classmethod
+    def of_record(cls, record: Any) -> Registration:
+        """The registration of :meth:`record`'s output; ValueError naming the bad field."""
+        if not isinstance(record, dict):
+            raise ValueError("a registration must be an object")
+        scale, shift, parallax = (record.get(k) for k in ("scale", "shift_px", "parallax_px_m"))
+        if not isinstance(scale, int | float) or not 0.1 < scale < 10.0:
+            raise ValueError('"scale" must be a number in (0.1, 10)')
+        if not (isinstance(shift, list) and len(shift) == 2):
+            raise ValueError('"shift_px" must be two numbers')
+        values = [*shift, parallax]
+        if not all(isinstance(v, int | float) and np.isfinite(v) for v in values):
+            raise ValueError('"shift_px" and "parallax_px_m" must be finite numbers')
+        return cls(float(scale), (float(shift[0]), float(shift[1])), float(values[2]))
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """One frame's colour gradient and its depth edges (pixels and the nearer depth)."""
+
+    gradient: NDArray[np.float32]
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    z: NDArray[np.float64]
+    centre: tuple[float, float]
+
+
+def _edges(frame: Frame) -> _Edges | None:
+    """The depth-edge pixels of ``frame`` (at most :data:`EDGES_PER_FRAME`, evenly strided)
+    away from the border by :data:`RADIUS`, with the nearer depth of their 3x3 window."""
+    if frame.depth.shape != frame.rgb.shape[:2]:
+        return None
+    r = RADIUS
+    edges = depth_edges(frame.depth)
+    edges[:r], edges[-r:], edges[:, :r], edges[:, -r:] = False, False, False, False
+    ys, xs = np.nonzero(edges)
+    if len(ys) == 0:
+        return None
+    stride = -(-len(ys) // EDGES_PER_FRAME)  # ceil: at most EDGES_PER_FRAME
+    ys, xs = ys[::stride], xs[::stride]
+    depth = np.where(frame.depth > 0, frame.depth, np.float32(1e6)).astype(np.float32)
+    near = cv2.erode(depth, np.ones((3, 3), np.uint8))[ys, xs].astype(np.float64)
+    k = frame.intrinsics
+    return _Edges(gradient(frame.rgb), xs.astype(np.float64), ys.astype(np.float64), near,
+                  (k.cx, k.cy))  # fmt: skip
+
+
+def _score(edges: Sequence[_Edges], reg: Registration) -> float:
+    """The mean colour gradient at the depth edges moved by ``reg`` (0 for pixels it moves
+    out of the image)."""
+    total, count = 0.0, 0
+    s, (dx, dy), p = reg.scale, reg.shift_px, reg.parallax
+    for e in edges:
+        h, w = e.gradient.shape
+        cx, cy = e.centre
+        u = np.rint(s * (e.x - cx) + cx + dx + p / e.z).astype(np.int64)
+        v = np.rint(s * (e.y - cy) + cy + dy).astype(np.int64)
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        total += float(e.gradient[v[inside], u[inside]].sum())
+        count += len(u)
+    return total / count if count else 0.0
+
+
+def _best(edges: Sequence[_Edges], candidates: Iterable[Registration]) -> Registration:
+    return max(candidates, key=lambda reg: _score(edges, reg))
+
+
+def _grid(reg: Registration, span: float, step: float) -> Iterator[Registration]:
+    """``reg`` with every shift within ``span`` pixels of its own, ``step`` apart."""
+    offsets = np.round(np.arange(-span, span + 1e-9, step), 3)
+    for oy in offsets:
+        for ox in offsets:
+            shift = (float(reg.shift_px[0] + ox), float(reg.shift_px[1] + oy))
+            yield replace(reg, shift_px=shift)
+
+
+def _widened(gradient: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``gradient`` with each pixel the largest of its 5x5 window: edges a coarse grid's
+    step (4 px) apart still score."""
+    return np.asarray(cv2.dilate(gradient, np.ones((5, 5), np.uint8)), dtype=np.float32)
+
+
+def _search(edges: Sequence[_Edges]) -> Registration:
+    """Whole-pixel shifts within :data:`RADIUS`; then scales (:data:`SCALES`) with coarse
+    shifts, the parallax with the horizontal shift, and a finer pass, each kept only when it
+    scores higher."""
+    best = _best(edges, _grid(Registration(), RADIUS, 1.0))
+    coarse = [reg for s in SCALES for reg in _grid(Registration(float(s)), 4 * RADIUS, 4.0)]
+    wide = [replace(e, gradient=_widened(e.gradient)) for e in edges]
+    scores = np.array([_score(wide, reg) for reg in coarse])  # 4 px apart: widened edges
+    leads = [coarse[int(i)] for i in np.argsort(-scores)[:COARSE_LEADS]]
+    scaled = _best(edges, (reg for lead in leads for reg in _grid(lead, 3.0, 1.0)))
+    if _score(edges, scaled) <= _score(edges, best) * (1.0 + MIN_STEP_GAIN):
+        return best
+    best = scaled
+    best = _best(edges, (
+        replace(best, parallax=float(p), shift_px=(best.shift_px[0] + float(o), best.shift_px[1]))
+        for p in PARALLAXES for o in np.arange(-8.0, 8.0 + 1e-9, 1.0)
+    ))  # fmt: skip
+    fine = np.round(best.scale + np.arange(-0.01, 0.01 + 1e-9, 0.0025), 4)
+    return _best(edges, (
+        reg for s in fine for reg in _grid(replace(best, scale=float(s)), 1.5, 0.5)
+    ))  # fmt: skip
 
 
 def estimate(frames: Sequence[Frame]) -> dict[str, Any]:
-    """The shift ``(dx, dy)`` that moves the depth edges of ``frames`` onto the colour edges
-    (colour edge = depth edge + shift), its score and gain over no shift, and the depth-edge
-    pixels measured; shift None without depth edges."""
+    """The registration that moves the depth edges of ``frames`` onto the colour edges
+    (:class:`Registration`), its score and gain over none, and the depth-edge pixels
+    measured; ``registration`` None without depth edges. ``shift_px`` is its shift."""
     sample = _spread(frames, MAX_FRAMES)
-    scores, count = edge_scores(sample)
+    edges = [e for e in (_edges(f) for f in sample) if e is not None]
+    count = sum(len(e.x) for e in edges)
     if count == 0:
-        return {"shift_px": None, "gain": None, "edge_pixels": 0, "frames": len(sample)}
-    r = (scores.shape[0] - 1) // 2
-    dy, dx = np.unravel_index(int(np.argmax(scores)), scores.shape)
-    zero = float(scores[r, r])
-    best = float(scores[dy, dx])
+        return {"registration": None, "shift_px": None, "gain": None, "edge_pixels": 0,
+                "frames": len(sample)}  # fmt: skip
+    best = _search(edges)
+    zero, score = _score(edges, Registration()), _score(edges, best)
+    record = best.record()
     return {
-        "shift_px": [int(dx) - r, int(dy) - r],
-        "score": round(best, 4),
+        "registration": record,
+        "shift_px": record["shift_px"],
+        "score": round(score, 4),
         "score_unshifted": round(zero, 4),
-        "gain": round(best / zero - 1.0, 4) if zero > 0 else None,
+        "gain": round(score / zero - 1.0, 4) if zero > 0 else None,
         "edge_pixels": count,
         "frames": len(sample),
     }
@@ -163,30 +298,67 @@ def _spread(frames: Sequence[Frame], most: int) -> list[Frame]:
     return [frames[int(i)] for i in np.linspace(0, len(frames) - 1, most).round()]
 
 
-def decide(mode: str, given: tuple[int, int], measured: dict[str, Any] | None) -> tuple[int, int]:
-    """The shift (colour edge = depth edge + shift) the depth is moved by: ``given`` when
-    non-zero, else in ``auto`` the measured one when non-zero, it gains more than
-    :data:`MIN_GAIN` and was measured on at least :data:`MIN_EDGE_PIXELS`, else none."""
+def decide(mode: str, given: tuple[int, int], measured: dict[str, Any] | None) -> Registration:
+    """The registration the depth is moved by: the ``given`` shift when non-zero, else in
+    ``auto`` the measured one when it gains more than :data:`MIN_GAIN` and was measured on at
+    least :data:`MIN_EDGE_PIXELS`, else none."""
     if given != (0, 0):
-        return given
-    if mode != "auto" or measured is None or measured.get("shift_px") is None:
-        return (0, 0)
+        return Registration(shift_px=(float(given[0]), float(given[1])))
+    if mode != "auto" or measured is None or measured.get("registration") is None:
+        return Registration()
     gain = measured.get("gain")
     if gain is None or gain <= MIN_GAIN or measured.get("edge_pixels", 0) < MIN_EDGE_PIXELS:
-        return (0, 0)
-    dx, dy = measured["shift_px"]
-    return (int(dx), int(dy))
+        return Registration()
+    return Registration.of_record(measured["registration"])
 
 
-def registered(frames: Sequence[Frame], shift: tuple[int, int]) -> tuple[Frame, ...]:
-    """``frames`` with their depth moved by ``shift`` onto the colour (unchanged at 0)."""
-    if shift == (0, 0):
+def registered_depth(frame: Frame, reg: Registration) -> NDArray[np.float32]:
+    """``frame``'s depth moved onto its colour image by ``reg``: each depth pixel goes to the
+    nearest colour pixel (the nearest surface where several land); where a finer colour grid
+    (scale above 1) leaves a pixel between them empty, the nearest of its 3x3 neighbours."""
+    shift = reg.integer_shift
+    if shift is not None:
+        return shifted(frame.depth, shift)
+    depth = frame.depth
+    h, w = depth.shape
+    ys, xs = np.nonzero(depth > 0)
+    z = depth[ys, xs].astype(np.float64)
+    k = frame.intrinsics
+    u = np.rint(reg.scale * (xs - k.cx) + k.cx + reg.shift_px[0] + reg.parallax / z)
+    v = np.rint(reg.scale * (ys - k.cy) + k.cy + reg.shift_px[1])
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v, z = u[inside].astype(np.int64), v[inside].astype(np.int64), z[inside]
+    order = np.argsort(-z)  # far first: the nearest surface is written last
+    out = np.zeros((h, w), dtype=np.float32)
+    out[v[order], u[order]] = z[order]
+    if reg.scale > 1.0:
+        near = cv2.erode(np.where(out > 0, out, np.float32(1e6)), np.ones((3, 3), np.uint8))
+        out = np.where((out == 0) & (near < 1e6), near, out).astype(np.float32)
+    return out
+
+
+def colour_pose(frame: Frame, reg: Registration) -> NDArray[np.float64]:
+    """The pose of ``frame``'s colour camera: its depth camera's moved by the baseline the
+    parallax implies (unchanged without parallax)."""
+    if reg.parallax == 0.0:
+        return frame.c2w
+    c2w = frame.c2w.copy()
+    c2w[:3, 3] -= c2w[:3, 0] * reg.baseline_m(frame.intrinsics.fx)
+    return c2w
+
+
+def registered(frames: Sequence[Frame], reg: Registration) -> tuple[Frame, ...]:
+    """``frames`` with their depth moved onto the colour and, with a parallax, their pose
+    moved to the colour camera's (unchanged for the identity)."""
+    if reg.identity:
         return tuple(frames)
-    return tuple(replace(f, depth=shifted(f.depth, shift)) for f in frames)
+    return tuple(
+        replace(f, depth=registered_depth(f, reg), c2w=colour_pose(f, reg)) for f in frames
+    )
 
 
 def report(
-    mode: str, given: tuple[int, int], measured: dict[str, Any] | None, applied: tuple[int, int]
+    mode: str, given: tuple[int, int], measured: dict[str, Any] | None, applied: Registration
 ) -> dict[str, Any]:
     """The ``sensor.registration`` entry of ``reconstruction.json``."""
     return {
@@ -194,26 +366,38 @@ def report(
         "measured": measured,
         "min_gain": MIN_GAIN,
         "min_edge_pixels": MIN_EDGE_PIXELS,
-        "applied_shift_px": list(applied),
+        "applied_shift_px": [round(v, 3) for v in applied.shift_px],
+        "applied": applied.record(),
     }
 
 
 def log_decision(entry: dict[str, Any]) -> None:
-    """One log line: the measured shift, its gain, and what was applied."""
-    measured, applied = entry["measured"], entry["applied_shift_px"]
-    done = f"depth moved by {applied} px onto the colour" if any(applied) else "depth as is"
+    """One log line: the measured registration, its gain, and what was applied."""
+    measured, applied = entry["measured"], entry["applied"]
+    moved = applied != Registration().record()
+    done = f"depth moved onto the colour ({_describe(applied)})" if moved else "depth as is"
     if entry["mode"] == "given":
-        log.info("colour/depth registration: given shift %s px: %s", applied, done)
+        log.info("colour/depth registration: given shift %s px: %s", applied["shift_px"], done)
     elif measured is None:
         log.info("colour/depth registration: not estimated (%s): %s", entry["mode"], done)
-    elif measured["shift_px"] is None:
+    elif measured["registration"] is None:
         log.info("colour/depth registration: no depth edges to measure: %s", done)
     else:
         log.info(
-            "colour/depth registration: colour edges sit %s px from the depth edges "
+            "colour/depth registration: colour edges sit at %s from the depth edges "
             "(edge contrast +%.1f %% over none, %d edge pixels): %s",
-            measured["shift_px"],
+            _describe(measured["registration"]),
             100 * (measured["gain"] or 0.0),
             measured["edge_pixels"],
             done,
         )
+
+
+def _describe(record: dict[str, Any]) -> str:
+    """``shift [dx, dy] px`` plus the scale and parallax where they are not the identity's."""
+    text = f"shift {record['shift_px']} px"
+    if record["scale"] != 1.0:
+        text += f", scale {record['scale']:.4f}"
+    if record["parallax_px_m"] != 0.0:
+        text += f", parallax {record['parallax_px_m']:.1f} px m"
+    return text

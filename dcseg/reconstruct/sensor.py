@@ -127,7 +127,7 @@ def depth_agreement(frames: Sequence[Frame], a: float, step: float) -> dict[str,
     fewer than two frames or no overlap."""
     measured, expected, tilts = [], [], []
     for first, second in zip(frames[:-1], frames[1:], strict=True):
-        pair = _pair_disagreement(first, second)
+        pair = pair_disagreement(first, second)
         if pair is None:
             continue
         diff, z, xn, yn = pair
@@ -169,7 +169,7 @@ def tilt(
     return float(np.degrees(np.hypot(coef[1], coef[2])))
 
 
-def _pair_disagreement(src: Frame, dst: Frame) -> tuple[NDArray[np.float64], ...] | None:
+def pair_disagreement(src: Frame, dst: Frame) -> tuple[NDArray[np.float64], ...] | None:
     """``(projected - observed depth, observed depth, x / z, y / z)`` of ``src``'s grid pixels
     seen by ``dst`` with valid depth (``dst``'s camera coordinates), occlusions dropped; None
     when they see nothing in common."""

@@ -14,7 +14,8 @@ import torch
 from numpy.typing import NDArray
 
 from dcseg.gaussians import Gaussians
-from dcseg.reconstruct import exposure, pose_check, registration
+from dcseg.io.poses import CameraFile
+from dcseg.reconstruct import calibration, exposure, pose_check, registration
 from dcseg.reconstruct.align import align_pose
 from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.depth_filter import DepthFilter
@@ -29,6 +30,9 @@ from dcseg.reconstruct.views import make_view, split_frames
 from dcseg.types import Capture, Frame
 
 log = logging.getLogger(__name__)
+
+_Cameras = tuple[registration.Registration, calibration.Correction | None]
+"""The registration and the intrinsics correction a reconstruction applied."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,10 @@ class Reconstruction:
         original_poses: the capture's poses of the same frames (None likewise).
         sensor: what was detected in the training frames and applied
             (:func:`dcseg.reconstruct.sensor.sensor_report`).
+        cameras: the cameras fitted where they differ from the capture's (the depth
+            registered onto the colour by another colour camera, corrected intrinsics,
+            refined poses): every frame's pose and the records ``poses.json`` keeps; None
+            when the capture's cameras were used as they are.
         applied: the configuration the optimisation ran with: the requested one as the
             detections (pose refinement off: ``pose_lr`` 0) and an RGB-only capture (depth
             steps off) changed it; None when not recorded.
@@ -70,6 +78,7 @@ class Reconstruction:
     original_poses: dict[str, NDArray[np.float64]] | None = None
     sensor: dict[str, Any] = field(default_factory=dict)
     applied: ReconstructConfig | None = None
+    cameras: CameraFile | None = None
 
 
 def fit_gaussians(
@@ -98,9 +107,10 @@ def fit_gaussians(
     train, test = split_frames(capture.frames, cfg.holdout)
     seconds: dict[str, float] = {}
     start = time.perf_counter()
-    registration_entry = None
+    camera_entries: dict[str, Any] = {}
+    cameras = None
     if capture.has_depth:
-        train, test, registration_entry = _register(train, test, cfg)
+        train, test, camera_entries, cameras = _cameras(capture, train, test, cfg)
     seconds["registration"] = time.perf_counter() - start
     start = time.perf_counter()
     if capture.has_depth:
@@ -125,8 +135,7 @@ def fit_gaussians(
         sensor = rgb_only_report(capture, train)
         colour_on = _detect_exposure(sparse_colour_changes(train, capture.sparse), cfg, sensor)
         cfg = cfg if cfg.pose_refinement == "on" else replace(cfg, pose_lr=0.0)
-    if registration_entry is not None:
-        sensor["registration"] = registration_entry
+    sensor.update(camera_entries)
     blur = blur_decision(train, cfg.blurred_frames)
     sensor["motion_blur"] = blur.report([f.name for f in train])
     log_decision(blur)
@@ -173,6 +182,7 @@ def fit_gaussians(
         original_poses=None if poses is None else {f.name: f.c2w for f in capture.frames},
         sensor=sensor,
         applied=cfg,
+        cameras=_camera_file(cameras, train, test, poses),
     )
 
 
@@ -202,18 +212,65 @@ def _detect_exposure(
     return on
 
 
+def _cameras(
+    capture: Capture, train: Sequence[Frame], test: Sequence[Frame], cfg: ReconstructConfig
+) -> tuple[tuple[Frame, ...], tuple[Frame, ...], dict[str, Any], _Cameras]:
+    """The frames with their depth moved onto the colour (:func:`_register`), then their
+    intrinsics corrected (:func:`_calibrate`); the ``sensor`` entries and what was applied."""
+    train, test, entry, reg = _register(train, test, cfg)
+    train, test, intrinsics, fix = _calibrate(capture, train, test, cfg)
+    return train, test, {"registration": entry, "intrinsics": intrinsics}, (reg, fix)
+
+
 def _register(
     train: Sequence[Frame], test: Sequence[Frame], cfg: ReconstructConfig
-) -> tuple[tuple[Frame, ...], tuple[Frame, ...], dict[str, Any]]:
-    """The frames with their depth moved onto the colour by the given or estimated shift
-    (:mod:`dcseg.reconstruct.registration`), and the ``sensor.registration`` entry (logged)."""
+) -> tuple[tuple[Frame, ...], tuple[Frame, ...], dict[str, Any], registration.Registration]:
+    """The frames with their depth moved onto the colour by the given or estimated
+    registration (:mod:`dcseg.reconstruct.registration`), the ``sensor.registration`` entry
+    (logged) and the registration."""
     given = (cfg.depth_shift_x, cfg.depth_shift_y)
     auto = given == (0, 0) and cfg.depth_registration == "auto"
     measured = registration.estimate(train) if auto else None
-    shift = registration.decide(cfg.depth_registration, given, measured)
-    entry = registration.report(cfg.depth_registration, given, measured, shift)
+    reg = registration.decide(cfg.depth_registration, given, measured)
+    entry = registration.report(cfg.depth_registration, given, measured, reg)
     registration.log_decision(entry)
-    return registration.registered(train, shift), registration.registered(test, shift), entry
+    return registration.registered(train, reg), registration.registered(test, reg), entry, reg
+
+
+def _calibrate(
+    capture: Capture, train: Sequence[Frame], test: Sequence[Frame], cfg: ReconstructConfig
+) -> tuple[tuple[Frame, ...], tuple[Frame, ...], dict[str, Any], calibration.Correction | None]:
+    """The frames with their intrinsics corrected where ``auto`` finds them clearly wrong
+    (:mod:`dcseg.reconstruct.calibration`), the ``sensor.intrinsics`` entry (logged) and the
+    correction; a capture with a calibrated lens keeps its intrinsics."""
+    mode, why_not = cfg.intrinsics_refinement, None
+    if mode == "auto" and any(f.undistortion is not None for f in capture.frames):
+        why_not = "the capture's lens is calibrated (distortion given)"
+    measured = calibration.estimate(train) if mode == "auto" and why_not is None else None
+    fix = calibration.decide(mode, measured)
+    entry = calibration.report(mode, measured, fix, why_not)
+    if train:
+        calibration.log_decision(entry, train[0].intrinsics)
+    return calibration.corrected(train, fix), calibration.corrected(test, fix), entry, fix
+
+
+def _camera_file(
+    cameras: _Cameras | None,
+    train: Sequence[Frame],
+    test: Sequence[Frame],
+    poses: dict[str, NDArray[np.float64]] | None,
+) -> CameraFile | None:
+    """What ``poses.json`` keeps: every frame's pose (refined, or moved to its colour camera)
+    and the applied records; None when the frames are the capture's."""
+    reg, fix = cameras if cameras is not None else (registration.Registration(), None)
+    if poses is None and reg.identity and fix is None:
+        return None
+    final = poses if poses is not None else {f.name: f.c2w for f in (*train, *test)}
+    return CameraFile(
+        dict(final),
+        None if reg.identity else reg.record(),
+        None if fix is None else fix.record(),
+    )
 
 
 def _detect_misalignment(cfg: ReconstructConfig, sensor: dict[str, Any]) -> ReconstructConfig:

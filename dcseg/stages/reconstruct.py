@@ -3,8 +3,9 @@
 Writes ``scene.ply`` (3DGS layout), ``reconstruction.json`` (held-out metrics, the frame
 budget's choice, the size rules, timings, the detected sensor effects and, when the job has
 ground-truth surface points, the geometry: centre-to-surface distance and coverage) and, when
-poses were refined, ``poses.json``. A job given a scene
-(:attr:`~dcseg.inputs.RunInputs.scene`) links it (and its poses) instead.
+its cameras differ from the capture's (refined poses, depth registered by another colour
+camera, corrected intrinsics), ``poses.json``. A job given a scene
+(:attr:`~dcseg.inputs.RunInputs.scene`) links it (and its ``poses.json``) instead.
 """
 
 from __future__ import annotations
@@ -58,12 +59,12 @@ def _fitted(run: StageRun, capture: Capture, size: SceneSize, where: Any) -> dic
     from dcseg.io.ply import write_gaussians_ply
     from dcseg.io.poses import write_poses
     from dcseg.reconstruct.job import reconstruct_scene
-    from dcseg.reconstruct.poses import with_poses
+    from dcseg.reconstruct.poses import with_cameras
 
     pipeline = run.config.pipeline
     cfg, rules_record = reconstruct_record(pipeline.reconstruct, pipeline.rules, size)
     with run.clock.phase("reconstruct"):
-        gaussians, report = reconstruct_scene(
+        gaussians, report, cameras = reconstruct_scene(
             capture, cfg, where, steps(run.progress, "reconstruct")
         )
     report["size_rules"] = rules_record
@@ -74,11 +75,14 @@ def _fitted(run: StageRun, capture: Capture, size: SceneSize, where: Any) -> dic
         write_gaussians_ply(run.out / SCENE, gaussians)
         refinement = report.get("pose_refinement")
         if refinement is not None:  # the poses go to their own file, beside the scene
-            poses = refinement.pop("poses")
-            write_poses(run.out / POSES_FILE, poses)
+            refinement.pop("poses")
             refinement["file"] = POSES_FILE
-            capture = with_poses(capture, poses)
-        else:  # an earlier refined scene's poses would be read with this scene
+        if cameras is not None:
+            write_poses(
+                run.out / POSES_FILE, cameras.poses, cameras.registration, cameras.intrinsics
+            )
+            capture = with_cameras(capture, cameras)
+        else:  # an earlier scene's cameras would be read with this scene
             (run.out / POSES_FILE).unlink(missing_ok=True)
     report["seconds"] = {**report["seconds"], **_phases(run, ("read", "geometry", "write"))}
     report["versions"] = {"dcseg": __version__, **versions()}
@@ -110,25 +114,25 @@ def _geometry(gaussians: Any, ground_truth: Path) -> dict[str, Any]:
 def _given(run: StageRun, scene: Path, capture: Capture) -> dict[str, Any]:
     """Link a given scene (and the refined poses beside it) into ``run.out``."""
     from dcseg.io.ply import read_gaussians_ply
-    from dcseg.io.poses import read_poses
-    from dcseg.reconstruct.poses import with_poses
+    from dcseg.io.poses import read_cameras
+    from dcseg.reconstruct.poses import with_cameras
 
     report: dict[str, Any] = {"scene": str(scene)}
     gaussians = read_gaussians_ply(scene)
     link_or_copy(scene, run.out / SCENE)
     poses_file = scene.parent / POSES_FILE
     if poses_file.is_file():
-        poses = read_poses(poses_file)
-        missing = [f.name for f in capture.frames if f.name not in poses]
+        cameras = read_cameras(poses_file)
+        missing = [f.name for f in capture.frames if f.name not in cameras.poses]
         if missing:
             reason = (
-                f"has refined poses for the scene but none for {len(missing)} of the "
+                f"has the cameras the scene was fitted to but none for {len(missing)} of the "
                 f"capture's frames (first: {missing[0]}); reconstruct with the same frames "
                 "and budget"
             )
             raise InputError.single(str(poses_file), reason)
         link_or_copy(poses_file, run.out / POSES_FILE)
-        capture = with_poses(capture, poses)
+        capture = with_cameras(capture, cameras)
         report["pose_refinement"] = {"poses_from": str(scene.parent)}
     report["gaussians"] = len(gaussians)
     run.handover.capture, run.handover.gaussians = capture, gaussians

@@ -94,8 +94,8 @@ def _scene(run: StageRun) -> tuple[Capture, CapturePlan, Gaussians]:
         return capture, plan, gaussians
     from dcseg.io.captures import read_planned
     from dcseg.io.ply import read_gaussians_ply
-    from dcseg.io.poses import POSES_FILE, read_poses
-    from dcseg.reconstruct.poses import with_poses
+    from dcseg.io.poses import POSES_FILE, read_cameras
+    from dcseg.reconstruct.poses import with_cameras
 
     scene = run.folder("reconstruct")
     with run.clock.phase("read"):
@@ -103,7 +103,7 @@ def _scene(run: StageRun) -> tuple[Capture, CapturePlan, Gaussians]:
             run.inputs.capture, run.config.capture, run.config.pipeline.budget
         )
         if (scene / POSES_FILE).is_file():
-            capture = with_poses(capture, read_poses(scene / POSES_FILE))
+            capture = with_cameras(capture, read_cameras(scene / POSES_FILE))
         gaussians = read_gaussians_ply(scene / SCENE)
     return capture, plan, gaussians
 

@@ -68,7 +68,8 @@ def test_reconstruct_writes_ply_and_report(
     assert sensor["depth"]["noise"]["a_at_1m"] == report["depth_noise_at_1m"]
     assert 0.0 <= sensor["depth"]["missing_fraction"] <= 1.0
     assert set(sensor) == {
-        "frames_measured", "depth", "exposure", "poses", "motion_blur", "registration"
+        "frames_measured", "depth", "exposure", "poses", "motion_blur", "registration",
+        "intrinsics",
     }  # fmt: skip
     assert sensor["registration"]["mode"] == "auto" and "refined" in sensor["poses"]
     assert "geometry" not in report  # no ground truth beside the capture

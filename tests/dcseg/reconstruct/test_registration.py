@@ -14,10 +14,13 @@ from dcseg.reconstruct.config import ReconstructConfig
 from dcseg.reconstruct.registration import (
     MIN_EDGE_PIXELS,
     MIN_GAIN,
+    Registration,
+    colour_pose,
     decide,
     depth_edges,
     estimate,
     registered,
+    registered_depth,
     shifted,
 )
 from dcseg.types import Capture, Frame, Intrinsics
@@ -59,24 +62,78 @@ def test_a_known_shift_is_recovered_and_registered_frames_measure_none() -> None
     measured = estimate(frames((3, -2)))  # depth 3 px right and 2 px up of its colour
     assert measured["shift_px"] == [-3, 2], measured
     assert measured["gain"] > 2 * MIN_GAIN
-    assert decide("auto", (0, 0), measured) == (-3, 2)
-    fixed = registered(frames((3, -2)), (-3, 2))
+    assert measured["registration"] == {"scale": 1.0, "shift_px": [-3, 2], "parallax_px_m": 0.0}
+    assert decide("auto", (0, 0), measured) == Registration(shift_px=(-3.0, 2.0))
+    fixed = registered(frames((3, -2)), Registration(shift_px=(-3.0, 2.0)))
     inner = (slice(5, -5), slice(5, -5))
     np.testing.assert_array_equal(fixed[0].depth[inner], boxes(0)[1][inner])
     exact = estimate(frames((0, 0)))
     assert exact["shift_px"] == [0, 0] and exact["gain"] == 0.0
-    assert decide("auto", (0, 0), exact) == (0, 0)
+    assert decide("auto", (0, 0), exact).identity
 
 
 def test_the_decision_follows_the_mode_and_a_given_shift() -> None:
-    measured = {"shift_px": [2, 0], "gain": 0.5, "edge_pixels": MIN_EDGE_PIXELS}
-    assert decide("auto", (0, 0), measured) == (2, 0)
-    assert decide("auto", (0, 0), {**measured, "edge_pixels": MIN_EDGE_PIXELS - 1}) == (0, 0)
-    assert decide("off", (0, 0), measured) == (0, 0)
-    assert decide("auto", (0, 0), {"shift_px": [2, 0], "gain": MIN_GAIN / 2}) == (0, 0)
-    assert decide("auto", (-1, 4), measured) == (-1, 4)  # given wins, whatever is measured
-    assert decide("off", (-1, 4), None) == (-1, 4)
-    assert decide("auto", (0, 0), {"shift_px": None, "gain": None}) == (0, 0)
+    reg = {"scale": 0.9, "shift_px": [2, 0], "parallax_px_m": -12.0}
+    measured = {"registration": reg, "gain": 0.5, "edge_pixels": MIN_EDGE_PIXELS}
+    assert decide("auto", (0, 0), measured) == Registration(0.9, (2.0, 0.0), -12.0)
+    assert decide("auto", (0, 0), {**measured, "edge_pixels": MIN_EDGE_PIXELS - 1}).identity
+    assert decide("off", (0, 0), measured).identity
+    assert decide("auto", (0, 0), {**measured, "gain": MIN_GAIN / 2}).identity
+    given = Registration(shift_px=(-1.0, 4.0))
+    assert decide("auto", (-1, 4), measured) == given  # given wins, whatever is measured
+    assert decide("off", (-1, 4), None) == given
+    assert decide("auto", (0, 0), {"registration": None, "gain": None}).identity
+
+
+def colour_camera_frames(reg: Registration) -> list[Frame]:
+    """The boxes' colour with depth from a depth camera that ``reg`` maps onto it (no
+    parallax): each depth pixel takes the colour camera's depth where ``reg`` sends it."""
+    v, u = np.mgrid[0:96, 0:128].astype(np.float64)
+    uc = np.rint(reg.scale * (u - K.cx) + K.cx + reg.shift_px[0]).astype(int)
+    vc = np.rint(reg.scale * (v - K.cy) + K.cy + reg.shift_px[1]).astype(int)
+    inside = (uc >= 0) & (uc < 128) & (vc >= 0) & (vc < 96)
+    out = []
+    for seed in range(3):
+        rgb, depth = boxes(seed)
+        raw = np.zeros_like(depth)
+        raw[inside] = depth[vc[inside], uc[inside]]
+        out.append(Frame(f"f{seed}", rgb, raw, K, np.eye(4)))
+    return out
+
+
+def test_a_colour_camera_with_another_focal_length_is_recovered_and_registered() -> None:
+    truth = Registration(0.9, (2.0, -1.0))  # Kinect v1: colour focal 0.9 x the depth one's
+    measured = estimate(colour_camera_frames(truth))
+    found = Registration.of_record(measured["registration"])
+    assert abs(found.scale - 0.9) <= 0.01 and abs(found.parallax) <= 4.0, measured
+    assert np.allclose(found.shift_px, truth.shift_px, atol=1.5), measured
+    assert measured["gain"] > 2 * MIN_GAIN
+    fixed = registered_depth(colour_camera_frames(truth)[0], found)
+    expected = boxes(0)[1]
+    agree = np.abs(fixed - expected) < 0.01
+    assert agree[fixed > 0].mean() > 0.97 and (fixed > 0)[8:-8, 8:-8].mean() > 0.97
+
+
+def test_a_parallax_moves_near_depth_further_and_the_pose_to_the_colour_camera() -> None:
+    depth = np.zeros((96, 128), np.float32)
+    depth[40, 60], depth[50, 60] = 1.0, 2.0
+    frame = Frame("f", np.zeros((96, 128, 3), np.uint8), depth, K, np.eye(4))
+    reg = Registration(parallax=-10.0)  # 10 px at 1 m, 5 px at 2 m to the left
+    moved = registered_depth(frame, reg)
+    assert moved[40, 50] == 1.0 and moved[50, 55] == 2.0 and np.count_nonzero(moved) == 2
+    assert colour_pose(frame, reg)[0, 3] == pytest.approx(0.1)  # 10 px m / 100 px = 0.1 m
+    assert reg.baseline_m(K.fx) == pytest.approx(-0.1)
+
+
+def test_a_registration_record_is_checked_field_by_field() -> None:
+    reg = Registration(0.905, (-6.5, -1.0), -12.0)
+    assert Registration.of_record(reg.record()) == reg
+    with pytest.raises(ValueError, match='"scale"'):
+        Registration.of_record({**reg.record(), "scale": 0})
+    with pytest.raises(ValueError, match='"shift_px"'):
+        Registration.of_record({**reg.record(), "shift_px": [1.0]})
+    with pytest.raises(ValueError, match="finite"):
+        Registration.of_record({**reg.record(), "parallax_px_m": float("nan")})
 
 
 def test_depth_edges_are_the_jumps_not_the_slopes() -> None:
@@ -111,7 +168,7 @@ def test_a_reconstruction_detects_and_undoes_the_synthetic_misregistration(
     )  # fmt: skip
     entry = fit_gaussians(misregistered, tiny).sensor["registration"]
     assert entry["mode"] == "auto" and entry["measured"]["shift_px"] == [-3, 0]
-    assert entry["applied_shift_px"] == [-3, 0]
+    assert entry["applied_shift_px"] == [-3, 0] and entry["applied"]["scale"] == 1.0
     off = fit_gaussians(misregistered, replace(tiny, depth_registration="off"))
     assert off.sensor["registration"]["applied_shift_px"] == [0, 0]
     assert off.sensor["registration"]["measured"] is None

@@ -77,9 +77,9 @@ def test_reconstructs_with_photometric_loss_and_reports_depth_off(rgb_only: Capt
     training views of 48x36 neither generalises well: 14.5 vs 15.0 dB when written)."""
     cfg = replace(RECONSTRUCT_PRESETS["fast"], iterations=300, holdout=4, sh_degree=0)
     torch.manual_seed(0)
-    gaussians, report = reconstruct_scene(rgb_only, cfg, torch.device("cpu"))
+    gaussians, report, _ = reconstruct_scene(rgb_only, cfg, torch.device("cpu"))
     torch.manual_seed(0)
-    _, with_depth = reconstruct_scene(make_capture(8, 48, 36), cfg, torch.device("cpu"))
+    _, with_depth, _ = reconstruct_scene(make_capture(8, 48, 36), cfg, torch.device("cpu"))
     assert report["test_frames"] == ["frame000", "frame004"]
     psnr = report["psnr"]
     assert psnr is not None and 12.0 < psnr < 60.0 and psnr > with_depth["psnr"] - 1.5
@@ -102,7 +102,7 @@ def test_reconstructs_with_photometric_loss_and_reports_depth_off(rgb_only: Capt
 
 def _first_loss(capture: Capture, cfg: ReconstructConfig) -> float:
     torch.manual_seed(0)
-    _, report = reconstruct_scene(capture, replace(cfg, iterations=1), torch.device("cpu"))
+    _, report, _ = reconstruct_scene(capture, replace(cfg, iterations=1), torch.device("cpu"))
     return float(report["final_loss"])
 
 

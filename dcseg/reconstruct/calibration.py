@@ -1,0 +1,248 @@
+"""Wrong intrinsics: the focal length and principal point that make the frames' depth agree.
+
+Users often give a sensor's nominal intrinsics (``585,585,320,240`` for a Kinect) where its
+calibrated ones differ by 10 % in focal length and 10-15 px in principal point. Back-projected
+with a wrong focal length, every frame's depth becomes a point cloud squeezed or stretched
+across the image axes of its own camera; two frames that look at the scene from directions a
+few degrees apart then disagree about where its surfaces are, by centimetres, however exact
+their poses (a pose error, by contrast, differs from pair to pair). So the intrinsics that
+best explain the capture are those under which one frame's depth, projected into another,
+agrees with that frame's depth:
+
+* :func:`pairs`: up to :data:`MAX_PAIRS` pairs of training frames spread over the capture, each
+  frame with the partner whose viewing direction is closest to :data:`TARGET_DEG` apart
+  (between :data:`MIN_DEG` and :data:`MAX_DEG`);
+* :func:`disagreement`: the median over pairs of the median relative depth disagreement
+  (:func:`dcseg.reconstruct.sensor.pair_disagreement`, occlusions dropped) under a correction;
+* :func:`estimate`: a common focal scale (fx and fy) and a principal point shift found by
+  coordinate search, coarse then fine; ``auto`` applies them when the disagreement drops by
+  more than :data:`MIN_GAIN` (exact intrinsics gain a few per cent from fitting noise).
+
+Captures whose lens is calibrated (distortion given, :mod:`dcseg.lens`) and RGB-only captures
+keep their intrinsics. The correction goes to every frame, trained and held out, and to the
+later stages through ``poses.json`` (:mod:`dcseg.io.poses`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from dcseg.reconstruct.sensor import pair_disagreement
+from dcseg.types import Frame, Intrinsics
+
+log = logging.getLogger(__name__)
+
+MODES = ("auto", "off")
+"""``ReconstructConfig.intrinsics_refinement``: estimate and apply when clear, or not."""
+
+MAX_PAIRS = 24
+"""The estimate uses at most this many frame pairs."""
+
+MIN_DEG, TARGET_DEG, MAX_DEG = 3.0, 15.0, 30.0
+"""A pair's viewing directions differ by ``MIN_DEG``-``MAX_DEG`` degrees, closest to
+``TARGET_DEG``: under a few degrees a wrong focal length barely shows, beyond some tens the
+frames see little in common."""
+
+FOCAL_RANGE = (0.8, 1.25)
+"""Focal scales searched (times the given focal lengths)."""
+
+PRINCIPAL_RANGE = 0.1
+"""Principal point shifts searched, as a fraction of the image width and height."""
+
+MIN_GAIN = 0.3
+"""``auto`` applies the estimate when it lowers the depth disagreement by more than this
+fraction. Measured (benchmarks/README "Intrinsics"): exact synthetic intrinsics 0.01-0.03,
+Replica room0 below 0.1; a 10 % focal error 0.8."""
+
+
+@dataclass(frozen=True)
+class Correction:
+    """Intrinsics corrected by a common focal scale and a principal point shift of
+    ``shift_px`` pixels at an image of ``size`` (width, height); scaled to other sizes."""
+
+    focal_scale: float = 1.0
+    shift_px: tuple[float, float] = (0.0, 0.0)
+    size: tuple[int, int] = (1, 1)
+
+    def apply(self, k: Intrinsics) -> Intrinsics:
+        """``k`` corrected (the shift scaled by ``k``'s size over :attr:`size`)."""
+        dx = self.shift_px[0] * k.width / self.size[0]
+        dy = self.shift_px[1] * k.height / self.size[1]
+        s = self.focal_scale
+        return replace(k, fx=k.fx * s, fy=k.fy * s, cx=k.cx + dx, cy=k.cy + dy)
+
+    def record(self) -> dict[str, Any]:
+        """The JSON form (``poses.json`` ``intrinsics``, ``reconstruction.json``)."""
+        return {
+            "focal_scale": round(self.focal_scale, 6),
+            "principal_shift_px": [round(v, 3) for v in self.shift_px],
+            "at_size": list(self.size),
+        }
+
+    @classmethod
+    def of_record(cls, record: Mapping[str, Any]) -> Correction:
+        """The correction of :meth:`record`'s output; ValueError naming the bad field."""
+        scale = record.get("focal_scale")
+        shift = record.get("principal_shift_px")
+        size = record.get("at_size")
+        if not isinstance(scale, int | float) or not 0.1 < scale < 10.0:
+            raise ValueError('"focal_scale" must be a number in (0.1, 10)')
+        if not isinstance(shift, list) or not _numbers(shift, 2):
+            raise ValueError('"principal_shift_px" must be two finite numbers')
+        if not isinstance(size, list) or not _numbers(size, 2) or min(size) < 1:
+            raise ValueError('"at_size" must be a width and a height of at least 1')
+        return cls(float(scale), (float(shift[0]), float(shift[1])), (int(size[0]), int(size[1])))
+
+
+def _numbers(value: Any, count: int) -> bool:
+    return (
+        isinstance(value, list)
+        and len(value) == count
+        and all(isinstance(v, int | float) and np.isfinite(v) for v in value)
+    )
+
+
+def corrected(frames: Sequence[Frame], correction: Correction | None) -> tuple[Frame, ...]:
+    """``frames`` with their intrinsics corrected (unchanged for None)."""
+    if correction is None:
+        return tuple(frames)
+    return tuple(replace(f, intrinsics=correction.apply(f.intrinsics)) for f in frames)
+
+
+def _angle_deg(a: Frame, b: Frame) -> float:
+    """Degrees between the viewing directions (optical axes) of ``a`` and ``b``."""
+    cos = float(np.dot(a.c2w[:3, 2], b.c2w[:3, 2]))
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def pairs(frames: Sequence[Frame]) -> list[tuple[int, int]]:
+    """Up to :data:`MAX_PAIRS` index pairs: frames evenly spread over ``frames``, each with the
+    frame whose viewing direction is closest to :data:`TARGET_DEG` away (none outside
+    :data:`MIN_DEG`-:data:`MAX_DEG`); a pair is kept once."""
+    n = len(frames)
+    axes = np.stack([f.c2w[:3, 2] for f in frames]) if n else np.zeros((0, 3))
+    found: list[tuple[int, int]] = []
+    for i in np.unique(np.linspace(0, n - 1, min(MAX_PAIRS, n)).round().astype(int)):
+        cos = np.clip(axes @ axes[i], -1.0, 1.0)
+        deg = np.degrees(np.arccos(cos))
+        fits = (deg >= MIN_DEG) & (deg <= MAX_DEG)
+        if not fits.any():
+            continue
+        j = int(np.argmin(np.where(fits, np.abs(deg - TARGET_DEG), np.inf)))
+        pair = (min(int(i), j), max(int(i), j))
+        if pair not in found:
+            found.append(pair)
+    return found
+
+
+def disagreement(
+    frames: Sequence[Frame], chosen: Sequence[tuple[int, int]], correction: Correction
+) -> float | None:
+    """Median over ``chosen`` pairs of the median of ``|projected - observed| / observed``
+    depth with ``correction`` applied to both frames; None when no pair overlaps."""
+    values = []
+    for i, j in chosen:
+        first, second = corrected((frames[i], frames[j]), correction)
+        pair = pair_disagreement(first, second)
+        if pair is not None:
+            values.append(float(np.median(np.abs(pair[0]) / pair[1])))
+    return float(np.median(values)) if values else None
+
+
+def _search(
+    frames: Sequence[Frame], chosen: Sequence[tuple[int, int]], size: tuple[int, int]
+) -> tuple[Correction, float]:
+    """The correction with the lowest :func:`disagreement`: focal scale, then the principal
+    point's x and y, coarse over the whole range, then twice finer around the best."""
+    best = Correction(size=size)
+
+    def cost(c: Correction) -> float:
+        value = disagreement(frames, chosen, c)
+        return np.inf if value is None else value
+
+    w, h = size
+    rounds = (
+        (np.arange(FOCAL_RANGE[0], FOCAL_RANGE[1] + 1e-9, 0.01), PRINCIPAL_RANGE, 2.0),
+        (np.arange(-0.02, 0.02 + 1e-9, 0.002), 0.01, 0.5),
+    )
+    for index, (scales, span, step) in enumerate(rounds):
+        focal = scales if index == 0 else best.focal_scale + scales
+        best = min((replace(best, focal_scale=float(s)) for s in focal), key=cost)
+        dx0, dy0 = best.shift_px
+        xs = dx0 + np.arange(-span * w, span * w + 1e-9, step)
+        best = min((replace(best, shift_px=(float(x), dy0)) for x in xs), key=cost)
+        ys = dy0 + np.arange(-span * h, span * h + 1e-9, step)
+        best = min((replace(best, shift_px=(best.shift_px[0], float(y))) for y in ys), key=cost)
+    return best, cost(best)
+
+
+def estimate(frames: Sequence[Frame]) -> dict[str, Any]:
+    """The correction that best makes pairs of ``frames`` agree (module docstring), the
+    disagreement before and after, and the gain; ``correction`` None without usable pairs."""
+    chosen = pairs(frames)
+    given = disagreement(frames, chosen, Correction()) if chosen else None
+    if given is None:
+        return {"pairs": 0, "correction": None, "gain": None}
+    size = (frames[0].width, frames[0].height)
+    best, after = _search(frames, chosen, size)
+    return {
+        "pairs": len(chosen),
+        "disagreement_given": round(given, 6),
+        "disagreement_fitted": round(after, 6),
+        "correction": best.record(),
+        "gain": round(1.0 - after / given, 4) if given > 0 else 0.0,
+    }
+
+
+def decide(mode: str, measured: Mapping[str, Any] | None) -> Correction | None:
+    """The correction applied: in ``auto`` the measured one when it gains more than
+    :data:`MIN_GAIN`; else none."""
+    if mode != "auto" or measured is None or measured.get("correction") is None:
+        return None
+    gain = measured.get("gain")
+    if gain is None or gain <= MIN_GAIN:
+        return None
+    return Correction.of_record(measured["correction"])
+
+
+def report(mode: str, measured: Mapping[str, Any] | None, applied: Correction | None,
+           why_not: str | None = None) -> dict[str, Any]:  # fmt: skip
+    """The ``sensor.intrinsics`` entry of ``reconstruction.json``."""
+    entry: dict[str, Any] = {
+        "mode": mode,
+        "measured": None if measured is None else dict(measured),
+        "min_gain": MIN_GAIN,
+        "applied": None if applied is None else applied.record(),
+    }
+    if why_not is not None:
+        entry["not_measured"] = why_not
+    return entry
+
+
+def log_decision(entry: Mapping[str, Any], given: Intrinsics) -> None:
+    """One log line: what was measured and what the intrinsics are now."""
+    measured, applied = entry["measured"], entry["applied"]
+    if measured is None:
+        log.info("intrinsics: not checked (%s)", entry.get("not_measured", entry["mode"]))
+        return
+    if measured["correction"] is None:
+        log.info("intrinsics: not checked (no two training frames view %g-%g deg apart)",
+                 MIN_DEG, MAX_DEG)  # fmt: skip
+        return
+    fitted = Correction.of_record(measured["correction"]).apply(given)
+    done = "kept as given"
+    if applied is not None:
+        done = f"now fx {fitted.fx:.1f} fy {fitted.fy:.1f} cx {fitted.cx:.1f} cy {fitted.cy:.1f}"
+    log.info(
+        "intrinsics: depth of %d frame pairs agrees best at fx %.1f fy %.1f cx %.1f cy %.1f "
+        "(given %.1f %.1f %.1f %.1f): disagreement %.2f %% -> %.2f %% of the depth (%s): %s",
+        measured["pairs"], fitted.fx, fitted.fy, fitted.cx, fitted.cy,
+        given.fx, given.fy, given.cx, given.cy,
+        100 * measured["disagreement_given"], 100 * measured["disagreement_fitted"],
+        entry["mode"], done,
+    )  # fmt: skip

@@ -96,9 +96,12 @@ def pose_errors(truth: dict[str, NDArray[np.float64]], poses: dict[str, Any]) ->
 
 
 def refined_poses(run: Path) -> dict[str, Any] | None:
-    """The run's refined poses (its ``poses.json``), None when it did not refine them."""
+    """The run's refined poses (its ``poses.json``), None when it did not refine them (the
+    file also holds the cameras of a registration or intrinsics correction alone)."""
     path = run / POSES_FILE
-    return dict(read_poses(path)) if path.is_file() else None
+    report = json.loads((run / "reconstruction.json").read_text(encoding="utf-8"))
+    refined = report.get("pose_refinement") is not None
+    return dict(read_poses(path)) if refined and path.is_file() else None
 
 
 def score_poses(scene: Path, run: Path, cfg: SynthConfig) -> dict[str, Any]:

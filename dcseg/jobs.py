@@ -86,8 +86,9 @@ def reconstruct_job(
     scene: Path | None = None,
 ) -> dict[str, Any]:
     """Run the reconstruct stage alone into ``out`` (``dcseg reconstruct``): ``scene.ply``,
-    ``reconstruction.json`` and, with refined poses, ``poses.json``. Returns the report. A
-    bundle's ground truth (``gt/points.ply``) adds the geometry metrics to the report."""
+    ``reconstruction.json`` and, when its cameras differ from the capture's, ``poses.json``.
+    Returns the report. A bundle's ground truth (``gt/points.ply``) adds the geometry metrics
+    to the report."""
     out.mkdir(parents=True, exist_ok=True)
     inputs = RunInputs.from_bundle(capture, scene=scene, complete=False)
     stage = StageRun(inputs, config, out, {}, on_progress, device)

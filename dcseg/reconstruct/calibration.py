@@ -43,6 +43,10 @@ MODES = ("auto", "off")
 MAX_PAIRS = 24
 """The estimate uses at most this many frame pairs."""
 
+MIN_PAIRS = 4
+"""``auto`` corrects nothing measured on fewer overlapping pairs (one pair's pose error could
+pass for a focal error)."""
+
 MIN_DEG, TARGET_DEG, MAX_DEG = 3.0, 15.0, 30.0
 """A pair's viewing directions differ by ``MIN_DEG``-``MAX_DEG`` degrees, closest to
 ``TARGET_DEG``: under a few degrees a wrong focal length barely shows, beyond some tens the
@@ -87,10 +91,12 @@ class Correction:
     @classmethod
     def of_record(cls, record: Mapping[str, Any]) -> Correction:
         """The correction of :meth:`record`'s output; ValueError naming the bad field."""
+        if not isinstance(record, Mapping):
+            raise ValueError("the correction must be an object")
         scale = record.get("focal_scale")
         shift = record.get("principal_shift_px")
         size = record.get("at_size")
-        if not isinstance(scale, int | float) or not 0.1 < scale < 10.0:
+        if isinstance(scale, bool) or not isinstance(scale, int | float) or not 0.1 < scale < 10.0:
             raise ValueError('"focal_scale" must be a number in (0.1, 10)')
         if not isinstance(shift, list) or not _numbers(shift, 2):
             raise ValueError('"principal_shift_px" must be two finite numbers')
@@ -103,7 +109,9 @@ def _numbers(value: Any, count: int) -> bool:
     return (
         isinstance(value, list)
         and len(value) == count
-        and all(isinstance(v, int | float) and np.isfinite(v) for v in value)
+        and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) for v in value
+        )  # fmt: skip
     )
 
 
@@ -201,11 +209,11 @@ def estimate(frames: Sequence[Frame]) -> dict[str, Any]:
 
 def decide(mode: str, measured: Mapping[str, Any] | None) -> Correction | None:
     """The correction applied: in ``auto`` the measured one when it gains more than
-    :data:`MIN_GAIN`; else none."""
+    :data:`MIN_GAIN` on at least :data:`MIN_PAIRS` pairs; else none."""
     if mode != "auto" or measured is None or measured.get("correction") is None:
         return None
     gain = measured.get("gain")
-    if gain is None or gain <= MIN_GAIN:
+    if gain is None or gain <= MIN_GAIN or measured.get("pairs", 0) < MIN_PAIRS:
         return None
     return Correction.of_record(measured["correction"])
 
@@ -231,8 +239,8 @@ def log_decision(entry: Mapping[str, Any], given: Intrinsics) -> None:
         log.info("intrinsics: not checked (%s)", entry.get("not_measured", entry["mode"]))
         return
     if measured["correction"] is None:
-        log.info("intrinsics: not checked (no two training frames view %g-%g deg apart)",
-                 MIN_DEG, MAX_DEG)  # fmt: skip
+        log.info("intrinsics: not checked (no two training frames %g-%g deg apart see the "
+                 "same surfaces)", MIN_DEG, MAX_DEG)  # fmt: skip
         return
     fitted = Correction.of_record(measured["correction"]).apply(given)
     done = "kept as given"

@@ -53,7 +53,8 @@ class Reconstruction:
             depth, None when no window of the depth could be measured.
         poses: per frame name (trained and held out) its refined camera-to-world pose, None
             when poses are not refined (``cfg.pose_lr`` = 0).
-        original_poses: the capture's poses of the same frames (None likewise).
+        original_poses: the poses refinement started from (None likewise): the capture's, or
+            its colour cameras' where the registration found a baseline.
         sensor: what was detected in the training frames and applied
             (:func:`dcseg.reconstruct.sensor.sensor_report`).
         cameras: the cameras fitted where they differ from the capture's (the depth
@@ -154,12 +155,13 @@ def fit_gaussians(
         exposure.log_fitted(summary)
 
     poses = None
+    started = {f.name: f.c2w for f in (*train, *test)}  # at the colour camera, if registered
     if fitted.corrections is not None:
         start = time.perf_counter()
         poses = refined_poses(fitted, train, test, cfg, device)
         test = tuple(replace(f, c2w=poses[f.name]) for f in test)
         seconds["align"] = time.perf_counter() - start
-        _log_change({f.name: f.c2w for f in capture.frames}, poses)
+        _log_change(started, poses)
     start = time.perf_counter()
     held_out = [make_view(f, 1, device) for f in test]
     colours = _held_out_exposure(fitted, capture, train, test)
@@ -179,7 +181,7 @@ def fit_gaussians(
         initial_count=len(init),
         depth_noise=noise,
         poses=poses,
-        original_poses=None if poses is None else {f.name: f.c2w for f in capture.frames},
+        original_poses=None if poses is None else started,
         sensor=sensor,
         applied=cfg,
         cameras=_camera_file(cameras, train, test, poses),

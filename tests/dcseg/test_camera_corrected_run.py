@@ -35,7 +35,7 @@ def tiny_config() -> PipelineConfig:
 def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A synthetic capture whose capture.json states focal lengths 10 % too long."""
     out = tmp_path_factory.mktemp("intrinsics") / "scene"
-    args = ["synth", str(out), "--frames", "12", "--size", "128x96", "--noise", "clean"]
+    args = ["synth", str(out), "--frames", "16", "--size", "128x96", "--noise", "clean"]
     assert main([*args, "--supersample", "1"]) == 0
     manifest = json.loads((out / "capture.json").read_text())
     manifest["true_intrinsics"] = dict(manifest["intrinsics"])
@@ -79,7 +79,7 @@ def test_a_given_scene_brings_its_corrected_intrinsics(scene: Path, reconstructe
     cameras = read_cameras(reconstructed / "poses.json")
     report = json.loads((reconstructed / "reconstruction.json").read_text())
     assert cameras.intrinsics == report["sensor"]["intrinsics"]["applied"]
-    assert cameras.registration is None and len(cameras.poses) == 12
+    assert cameras.registration is None and len(cameras.poses) == 16
     out = scene.parent / "given"
     inputs = RunInputs.from_bundle(scene, scene=reconstructed / "scene.ply")
     run_job(inputs, JobConfig(tiny_config()), out)
@@ -92,10 +92,11 @@ def test_a_given_scene_brings_its_corrected_intrinsics(scene: Path, reconstructe
     [
         ({"focal_scale": "x", "principal_shift_px": [0, 0], "at_size": [1, 1]}, '"focal_scale"'),
         ({"focal_scale": 0.9, "principal_shift_px": [0], "at_size": [1, 1]}, "principal_shift"),
+        ([0.9], "must be an object"),
     ],
 )
 def test_a_bad_intrinsics_record_is_named_and_refused(
-    scene: Path, reconstructed: Path, tmp_path: Path, record: dict[str, object], message: str
+    scene: Path, reconstructed: Path, tmp_path: Path, record: object, message: str
 ) -> None:
     copy = tmp_path / "scene"
     copy.mkdir()

@@ -10,6 +10,7 @@ import pytest
 from dcseg.reconstruct import fit_gaussians
 from dcseg.reconstruct.calibration import (
     MIN_GAIN,
+    MIN_PAIRS,
     Correction,
     corrected,
     decide,
@@ -50,6 +51,7 @@ def test_exact_intrinsics_are_kept(capture: Capture) -> None:
     assert measured["gain"] < MIN_GAIN / 3, measured
     assert decide("auto", measured) is None
     assert decide("off", {**measured, "gain": 0.9}) is None
+    assert decide("auto", {**measured, "gain": 0.9, "pairs": MIN_PAIRS - 1}) is None
 
 
 def test_pairs_need_views_a_few_degrees_apart(capture: Capture) -> None:
@@ -65,9 +67,13 @@ def test_a_correction_scales_with_the_image_and_its_record_is_checked() -> None:
     half = Intrinsics(fx=300.0, fy=300.0, cx=160.0, cy=120.0, width=320, height=240)
     assert fix.apply(half) == replace(half, fx=270.0, fy=270.0, cx=162.0, cy=119.0)
     assert Correction.of_record(fix.record()) == fix
-    for field, value in (("focal_scale", 0), ("principal_shift_px", [1]), ("at_size", [0, 4])):
+    bad = (("focal_scale", 0), ("focal_scale", True), ("principal_shift_px", [1]),
+           ("principal_shift_px", [True, 0]), ("at_size", [0, 4]))  # fmt: skip
+    for field, value in bad:
         with pytest.raises(ValueError, match=f'"{field}"'):
             Correction.of_record({**fix.record(), field: value})
+    with pytest.raises(ValueError, match="must be an object"):
+        Correction.of_record([0.9])  # type: ignore[arg-type]
 
 
 def test_a_reconstruction_corrects_wrong_intrinsics_for_every_frame(capture: Capture) -> None:

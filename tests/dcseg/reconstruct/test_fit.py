@@ -55,6 +55,8 @@ def test_metrics_are_finite(result: Reconstruction) -> None:
     assert set(result.seconds) == {"registration", "init", "sensor", "train", "eval"}
     assert result.sensor["poses"]["refined"] is False and result.poses is None  # exact poses
     assert result.sensor["registration"]["applied_shift_px"] == [0, 0]  # registered
+    assert result.sensor["registration"]["applied"]["scale"] == 1.0
+    assert result.sensor["intrinsics"]["applied"] is None and result.cameras is None
     assert result.sensor["depth"]["flying_pixels"]["dropped"] is True
     blur = result.sensor["motion_blur"]
     assert blur["mode"] == "weight" and blur["frames_checked"] == 3

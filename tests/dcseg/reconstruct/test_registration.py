@@ -62,8 +62,10 @@ def test_a_known_shift_is_recovered_and_registered_frames_measure_none() -> None
     measured = estimate(frames((3, -2)))  # depth 3 px right and 2 px up of its colour
     assert measured["shift_px"] == [-3, 2], measured
     assert measured["gain"] > 2 * MIN_GAIN
-    assert measured["registration"] == {"scale": 1.0, "shift_px": [-3, 2], "parallax_px_m": 0.0}
-    assert decide("auto", (0, 0), measured) == Registration(shift_px=(-3.0, 2.0))
+    assert measured["registration"] == {
+        "scale": 1.0, "shift_px": [-3, 2], "parallax_px_m": 0.0, "at_size": [128, 96]
+    }  # fmt: skip
+    assert decide("auto", (0, 0), measured) == Registration(shift_px=(-3.0, 2.0), size=(128, 96))
     fixed = registered(frames((3, -2)), Registration(shift_px=(-3.0, 2.0)))
     inner = (slice(5, -5), slice(5, -5))
     np.testing.assert_array_equal(fixed[0].depth[inner], boxes(0)[1][inner])
@@ -122,12 +124,35 @@ def test_a_parallax_moves_near_depth_further_and_the_pose_to_the_colour_camera()
     moved = registered_depth(frame, reg)
     assert moved[40, 50] == 1.0 and moved[50, 55] == 2.0 and np.count_nonzero(moved) == 2
     assert colour_pose(frame, reg)[0, 3] == pytest.approx(0.1)  # 10 px m / 100 px = 0.1 m
-    assert reg.baseline_m(K.fx) == pytest.approx(-0.1)
+    assert reg.baseline_m(K.fx) == pytest.approx(0.1)  # the colour camera sits 10 cm right
+    # found at twice the size (focal 200 px there): 10 px m is 5 cm, at any size
+    twice = Registration(parallax=-10.0, size=(256, 192))
+    assert colour_pose(frame, twice)[0, 3] == pytest.approx(0.05)
+
+
+def test_a_half_pixel_shift_moves_every_pixel_and_a_registration_follows_the_size() -> None:
+    depth = np.ones((96, 128), np.float32)
+    frame = Frame("f", np.zeros((96, 128, 3), np.uint8), depth, K, np.eye(4))
+    moved = registered_depth(frame, Registration(1.0, (0.5, 0.0)))
+    assert moved[:, 1:].all() and not moved[:, 0].any()  # none lost to ties, none doubled
+    half = Registration(1.0, (4.0, 2.0), size=(256, 192))  # found at twice this frame's size
+    np.testing.assert_array_equal(
+        registered_depth(boxes_frame(), half), shifted(boxes(0)[1], (2, 1))
+    )
+
+
+def boxes_frame() -> Frame:
+    rgb, depth = boxes(0)
+    return Frame("f0", rgb, depth, K, np.eye(4))
 
 
 def test_a_registration_record_is_checked_field_by_field() -> None:
-    reg = Registration(0.905, (-6.5, -1.0), -12.0)
+    reg = Registration(0.905, (-6.5, -1.0), -12.0, (640, 480))
     assert Registration.of_record(reg.record()) == reg
+    with pytest.raises(ValueError, match='"at_size"'):
+        Registration.of_record({**reg.record(), "at_size": [640]})
+    with pytest.raises(ValueError, match='"scale"'):
+        Registration.of_record({**reg.record(), "scale": True})
     with pytest.raises(ValueError, match='"scale"'):
         Registration.of_record({**reg.record(), "scale": 0})
     with pytest.raises(ValueError, match='"shift_px"'):

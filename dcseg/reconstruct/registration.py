@@ -58,7 +58,9 @@ this fraction (25 %). Measured (benchmarks/README "Real-sensor detection"): regi
 synthetic scenes and Replica room0 0 (best shift none); synthetic 3 px shifts about 1.0;
 but texture beside depth edges can pull the best shift off a registered scene: the analytic
 test scene (stripes 2 px below a box's top edge) 0.12-0.21 at 32x24-64x48. Smaller gains
-are reported, not applied (the slambook2 Kinect sample: 2 px, see the README)."""
+are reported, not applied (the slambook2 Kinect sample: 2 px, see the README); raw Kinect v1
+pairs (7-Scenes) 1.0 with their colour camera's scale and parallax; heavy synthetic noise can
+draw a spurious scale at 0.11-0.12 (``results/detect_intrinsics.json``)."""
 
 EDGES_PER_FRAME = 4000
 """At most this many depth-edge pixels per frame are scored (evenly strided in raster order):

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from dcseg.reconstruct.registration import finite_numbers, image_size, ratio
 from dcseg.reconstruct.sensor import pair_disagreement
 from dcseg.types import Frame, Intrinsics
 
@@ -96,26 +97,12 @@ class Correction:
         """The correction of :meth:`record`'s output; ValueError naming the bad field."""
         if not isinstance(record, Mapping):
             raise ValueError("the correction must be an object")
-        scale = record.get("focal_scale")
-        shift = record.get("principal_shift_px")
-        size = record.get("at_size")
-        if isinstance(scale, bool) or not isinstance(scale, int | float) or not 0.1 < scale < 10.0:
-            raise ValueError('"focal_scale" must be a number in (0.1, 10)')
-        if not isinstance(shift, list) or not _numbers(shift, 2):
+        scale = ratio(record.get("focal_scale"), "focal_scale")
+        shift: Any = record.get("principal_shift_px")
+        if not finite_numbers(shift, 2):
             raise ValueError('"principal_shift_px" must be two finite numbers')
-        if not isinstance(size, list) or not _numbers(size, 2) or min(size) < 1:
-            raise ValueError('"at_size" must be a width and a height of at least 1')
-        return cls(float(scale), (float(shift[0]), float(shift[1])), (int(size[0]), int(size[1])))
-
-
-def _numbers(value: Any, count: int) -> bool:
-    return (
-        isinstance(value, list)
-        and len(value) == count
-        and all(
-            isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) for v in value
-        )  # fmt: skip
-    )
+        size = image_size(record.get("at_size"))
+        return cls(scale, (float(shift[0]), float(shift[1])), size)
 
 
 def corrected(frames: Sequence[Frame], correction: Correction | None) -> tuple[Frame, ...]:
@@ -123,12 +110,6 @@ def corrected(frames: Sequence[Frame], correction: Correction | None) -> tuple[F
     if correction is None:
         return tuple(frames)
     return tuple(replace(f, intrinsics=correction.apply(f.intrinsics)) for f in frames)
-
-
-def _angle_deg(a: Frame, b: Frame) -> float:
-    """Degrees between the viewing directions (optical axes) of ``a`` and ``b``."""
-    cos = float(np.dot(a.c2w[:3, 2], b.c2w[:3, 2]))
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def pairs(frames: Sequence[Frame]) -> list[tuple[int, int]]:

@@ -188,21 +188,41 @@ class Registration:
         """The registration of :meth:`record`'s output; ValueError naming the bad field."""
         if not isinstance(record, dict):
             raise ValueError("a registration must be an object")
-        scale, shift, parallax = (record.get(k) for k in ("scale", "shift_px", "parallax_px_m"))
-        if not (isinstance(scale, int | float) and _number(scale) and 0.1 < scale < 10.0):
-            raise ValueError('"scale" must be a number in (0.1, 10)')
+        scale = ratio(record.get("scale"), "scale")
+        shift: Any = record.get("shift_px")
+        parallax: Any = record.get("parallax_px_m")
         if not (isinstance(shift, list) and len(shift) == 2):
             raise ValueError('"shift_px" must be two numbers')
-        values = [*shift, parallax, scale]
-        if not all(_number(v) and np.isfinite(v) for v in values):
+        if not finite_numbers([*shift, parallax], 3):
             raise ValueError('"shift_px" and "parallax_px_m" must be finite numbers')
         size = record.get("at_size")
-        if size is not None and not (
-            isinstance(size, list) and len(size) == 2 and all(_whole(v) for v in size)
-        ):
-            raise ValueError('"at_size" must be a width and a height of at least 1')
-        at = None if size is None else (int(size[0]), int(size[1]))
-        return cls(float(values[3]), (float(shift[0]), float(shift[1])), float(values[2]), at)
+        at = None if size is None else image_size(size)
+        return cls(scale, (float(shift[0]), float(shift[1])), float(parallax), at)
+
+
+def ratio(value: Any, field: str) -> float:
+    """``value`` as a scale factor of a record (a number in (0.1, 10)); ValueError naming
+    ``field``."""
+    if not (finite_numbers([value], 1) and 0.1 < value < 10.0):
+        raise ValueError(f'"{field}" must be a number in (0.1, 10)')
+    return float(value)
+
+
+def finite_numbers(values: Any, count: int) -> bool:
+    """Whether ``values`` is a list of ``count`` finite JSON numbers (booleans are not)."""
+    return (
+        isinstance(values, list)
+        and len(values) == count
+        and all(_number(v) and np.isfinite(v) for v in values)
+    )
+
+
+def image_size(value: Any) -> tuple[int, int]:
+    """``value`` as a record's ``at_size`` (width, height: whole numbers of at least 1);
+    ValueError naming the field."""
+    if not (isinstance(value, list) and len(value) == 2 and all(_whole(v) for v in value)):
+        raise ValueError('"at_size" must be a width and a height of at least 1')
+    return int(value[0]), int(value[1])
 
 
 def _number(value: Any) -> bool:

@@ -202,8 +202,10 @@ def vote3d(
 
 
 def exported_labels(saved: SavedRun, seg: Segmentation, out: Path) -> Labels:
-    """Write ``seg``'s outputs into ``out`` and read their labels back (what users download)."""
+    """Write ``seg``'s outputs into ``out`` and read their labels back (what users download);
+    the trained run's record goes beside them (``load_labels`` reads its lens record)."""
     write_outputs(out, saved.trained, seg, saved.vocabulary, [])
+    (out / "run.json").write_text(json.dumps(saved.record), encoding="utf-8")
     return load_labels(out, [v.name for v in saved.trained.views])
 
 

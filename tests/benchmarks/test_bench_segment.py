@@ -10,12 +10,18 @@ import pytest
 
 from benchmarks.bench_segment import (
     capture_faults,
+    current_config,
+    exported_labels,
     markdown,
     overridden,
     summarise,
     synth_fields,
 )
-from dcseg.config import preset
+from dcseg.config import JobConfig, preset
+from dcseg.io.run_output import load_run
+from dcseg.jobs import RunInputs, run_job
+from dcseg.pipeline import segment_scene
+from tests.dcseg.test_pipeline import tiny_config
 
 
 def row(noise: str, layout: int, group: str, naive: float, ours: list[float]) -> dict[str, Any]:
@@ -95,3 +101,21 @@ def test_error_generators_are_summarised_like_noise_levels() -> None:
     assert "| lowres | heldout 7 |" in markdown(summary)
     with pytest.raises(SystemExit, match="--synth error_model"):
         synth_fields(["error_model=detector"])
+
+
+def test_exported_labels_read_back_what_the_segmentation_made(tmp_path: Path) -> None:
+    """Scoring re-segments a saved run and reads the exports back as users do (with the run's
+    record beside them: ``load_labels`` reads its lens record)."""
+    from dcseg.cli import main
+
+    scene = tmp_path / "scene"
+    assert main(["synth", str(scene), "--frames", "4", "--size", "64x48", "--noise", "clean"]) == 0
+    run_job(RunInputs.from_bundle(scene), JobConfig(tiny_config()), tmp_path / "run")
+    saved = load_run(tmp_path / "run")
+    names = saved.vocabulary.names
+    cfg = current_config(saved, 0)
+    seg = segment_scene(saved.trained, saved.semantic, len(names), cfg, class_names=names)
+    (tmp_path / "out").mkdir()
+    labels = exported_labels(saved, seg, tmp_path / "out")
+    assert (labels.semantic_ids == seg.semantic_ids).all()
+    assert set(labels.label_maps) == {v.name for v in saved.trained.views}

@@ -14,7 +14,8 @@ DEPTH_OFF: tuple[str, ...] = (
     "initialisation from back-projected depth (the sparse points are used instead)",
     "depth loss (reconstruct.depth_weight)",
     "depth median filter and flying-pixel removal (depth_filter_window, drop_flying_pixels)",
-    "surface priors (init_thickness, thickness_weight, centre_weight, planar_depth)",
+    "surface priors (init_thickness, thickness_weight, centre_weight, opacity_weight, "
+    "planar_depth)",
     "sensor depth report (noise model, missing depth, pose/depth agreement)",
     "held-out depth error (depth_mae and surface_depth_mae are null)",
 )

@@ -228,6 +228,11 @@ class ReconstructConfig:
     nearest the centre is its target; 1 = the pixel's. Wider keeps centres on silhouettes, whose
     pixel sees the surface behind, on their object."""
 
+    opacity_weight: float = option(0.1, bounds=(0.0, 1000.0))
+    """Weight of the mean transparency of the Gaussians more than 0.25 opaque, from
+    ``centre_from`` on: walls and floors drawn by stacked half-transparent discs become opaque
+    discs on them (:func:`dcseg.reconstruct.surface.opacity_grad`); 0 = off."""
+
     planar_depth: bool = False
     """Render depth (the depth loss and the held-out depth error) as each flat Gaussian's
     ray-plane depth instead of its centre's over its whole footprint
@@ -335,7 +340,7 @@ class ReconstructConfig:
             raise ValueError(f"ssim_lambda must be in [0, 1], got {self.ssim_lambda}")
         if self.init_thickness is not None and not 0.0 < self.init_thickness <= 1.0:
             raise ValueError(f"init_thickness must be in (0, 1], got {self.init_thickness}")
-        for name in ("thickness_weight", "centre_weight", "centre_band"):
+        for name in ("thickness_weight", "centre_weight", "centre_band", "opacity_weight"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("centre_behind", "centre_from"):

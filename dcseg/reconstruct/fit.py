@@ -24,7 +24,7 @@ from dcseg.reconstruct.init import auto_voxel_size
 from dcseg.reconstruct.losses import depth_l1, rgb_loss
 from dcseg.reconstruct.poses import PoseCorrections, corrected_camera, move_gaussians
 from dcseg.reconstruct.sh import eval_sh
-from dcseg.reconstruct.surface import centre_depth_grad, thickness_grad
+from dcseg.reconstruct.surface import centre_depth_grad, opacity_grad, thickness_grad
 from dcseg.reconstruct.views import View, random_crop
 from dcseg.render import Camera, RenderOutput, render, render_planar
 
@@ -218,6 +218,9 @@ class _Trainer:
         if cfg.thickness_weight > 0:
             log_scales = self.params["log_scales"]
             _add_grad(log_scales, cfg.thickness_weight * thickness_grad(log_scales))
+        if cfg.opacity_weight > 0 and it >= cfg.pull_start:
+            logits = self.params["opacity_logits"]
+            _add_grad(logits, cfg.opacity_weight * opacity_grad(logits))
         if cfg.centre_weight > 0 and it >= cfg.pull_start:
             voxel = auto_voxel_size(self.extent, cfg)
             behind = None if cfg.centre_behind is None else cfg.centre_behind * voxel

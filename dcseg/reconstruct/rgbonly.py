@@ -48,6 +48,7 @@ PHOTOMETRIC_ONLY: dict[str, Any] = {
     "init_thickness": None,
     "thickness_weight": 0.0,
     "centre_weight": 0.0,
+    "opacity_weight": 0.0,
     "planar_depth": False,
 }
 """The reconstruction options an RGB-only capture overrides (reported as ``overrides``)."""

@@ -42,7 +42,7 @@ def test_photometric_only_turns_every_depth_step_off() -> None:
     cfg = photometric_only(RECONSTRUCT_PRESETS["fast"])
     assert cfg.depth_weight == 0.0 and cfg.depth_filter_window == 1
     assert not cfg.drop_flying_pixels and not cfg.planar_depth
-    assert cfg.thickness_weight == 0.0 and cfg.centre_weight == 0.0
+    assert cfg.thickness_weight == 0.0 and cfg.centre_weight == 0.0 and cfg.opacity_weight == 0.0
     assert set(PHOTOMETRIC_ONLY) <= set(vars(cfg))
 
 

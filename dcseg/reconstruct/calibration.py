@@ -71,14 +71,35 @@ calibration 0.18 (its keyframe poses are off: tilt 0.9 deg); focal lengths 7-10 
 @dataclass(frozen=True)
 class Correction:
     """Intrinsics corrected by a common focal scale and a principal point shift of
-    ``shift_px`` pixels at an image of ``size`` (width, height); scaled to other sizes."""
+    ``shift_px`` pixels at an image of ``size`` (width, height); scaled to other sizes.
+
+    ``given``: the ``(fx, fy, cx, cy)`` at ``size`` the correction was measured from, when every
+    frame had them. With them the correction is absolute: a capture read later with other
+    intrinsics (a run given the scene) still gets the cameras the scene was fitted with,
+    instead of correcting the new ones again."""
 
     focal_scale: float = 1.0
     shift_px: tuple[float, float] = (0.0, 0.0)
     size: tuple[int, int] = (1, 1)
+    given: tuple[float, float, float, float] | None = None
+
+    def base(self, k: Intrinsics) -> Intrinsics:
+        """What the correction applies to: :attr:`given` at ``k``'s size, else ``k``."""
+        if self.given is None:
+            return k
+        return Intrinsics(*self.given, *self.size).scaled(k.width, k.height)
+
+    def replaces(self, k: Intrinsics) -> bool:
+        """Whether ``k`` differs from :attr:`given` (by more than 0.5 px in a focal length or
+        the principal point at ``k``'s size): the correction then replaces it."""
+        base = self.base(k)
+        return any(abs(a - b) > 0.5 for a, b in zip(
+            (k.fx, k.fy, k.cx, k.cy), (base.fx, base.fy, base.cx, base.cy), strict=True
+        ))  # fmt: skip
 
     def apply(self, k: Intrinsics) -> Intrinsics:
         """``k`` corrected (the shift scaled by ``k``'s size over :attr:`size`)."""
+        k = self.base(k)
         dx = self.shift_px[0] * k.width / self.size[0]
         dy = self.shift_px[1] * k.height / self.size[1]
         s = self.focal_scale
@@ -86,11 +107,14 @@ class Correction:
 
     def record(self) -> dict[str, Any]:
         """The JSON form (``poses.json`` ``intrinsics``, ``reconstruction.json``)."""
-        return {
+        entry: dict[str, Any] = {
             "focal_scale": round(self.focal_scale, 6),
             "principal_shift_px": [round(v, 3) for v in self.shift_px],
             "at_size": list(self.size),
         }
+        if self.given is not None:
+            entry["given"] = [round(v, 4) for v in self.given]
+        return entry
 
     @classmethod
     def of_record(cls, record: Mapping[str, Any]) -> Correction:
@@ -102,7 +126,12 @@ class Correction:
         if not finite_numbers(shift, 2):
             raise ValueError('"principal_shift_px" must be two finite numbers')
         size = image_size(record.get("at_size"))
-        return cls(scale, (float(shift[0]), float(shift[1])), size)
+        given: Any = record.get("given")
+        if given is not None and not (finite_numbers(given, 4) and min(given[:2]) > 0):
+            raise ValueError('"given" must be four finite numbers fx fy cx cy, focals > 0')
+        known = None if given is None else (float(given[0]), float(given[1]),
+                                             float(given[2]), float(given[3]))  # fmt: skip
+        return cls(scale, (float(shift[0]), float(shift[1])), size, known)
 
 
 def corrected(frames: Sequence[Frame], correction: Correction | None) -> tuple[Frame, ...]:
@@ -173,6 +202,16 @@ def _search(
     return best, cost(best)
 
 
+def _shared(frames: Sequence[Frame]) -> tuple[float, float, float, float] | None:
+    """The ``(fx, fy, cx, cy)`` every frame has (all of one size), else None."""
+    values = {(f.width, f.height, f.intrinsics.fx, f.intrinsics.fy, f.intrinsics.cx,
+               f.intrinsics.cy) for f in frames}  # fmt: skip
+    if len(values) != 1:
+        return None
+    _, _, fx, fy, cx, cy = values.pop()
+    return (fx, fy, cx, cy)
+
+
 def estimate(frames: Sequence[Frame]) -> dict[str, Any]:
     """The correction that best makes pairs of ``frames`` agree (module docstring), the
     disagreement before and after, and the gain; ``correction`` None without usable pairs."""
@@ -182,6 +221,7 @@ def estimate(frames: Sequence[Frame]) -> dict[str, Any]:
         return {"pairs": 0, "correction": None, "gain": None}
     size = (frames[0].width, frames[0].height)
     best, after = _search(frames, chosen, size)
+    best = replace(best, given=_shared(frames))
     return {
         "pairs": len(chosen),
         "disagreement_given": round(given, 6),

@@ -17,6 +17,7 @@ only on the steps that see it); densification never touches them.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -31,6 +32,8 @@ from dcseg.io.poses import CameraFile
 from dcseg.reconstruct.stepping import AdamStepping
 from dcseg.render import Camera
 from dcseg.types import Capture
+
+log = logging.getLogger(__name__)
 
 _EPS = 1e-12
 
@@ -191,6 +194,12 @@ def with_cameras(capture: Capture, cameras: CameraFile) -> Capture:
         if fix is not None:
             frame = replace(frame, intrinsics=fix.apply(frame.intrinsics))
         frames.append(frame)
+    if fix is not None and any(fix.replaces(f.intrinsics) for f in capture.frames):
+        log.warning(
+            "the scene's cameras were corrected from intrinsics fx fy cx cy %s at %dx%d; the "
+            "capture now states others: the scene's corrected cameras are used",
+            " ".join(f"{v:g}" for v in fix.given or ()), *fix.size,
+        )  # fmt: skip
     return replace(capture, frames=tuple(frames))
 
 

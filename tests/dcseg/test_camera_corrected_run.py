@@ -4,6 +4,8 @@ correction, and the later stages (and a run given that scene) see the corrected 
 from __future__ import annotations
 
 import json
+import logging
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -85,6 +87,25 @@ def test_a_given_scene_brings_its_corrected_intrinsics(scene: Path, reconstructe
     run_job(inputs, JobConfig(tiny_config()), out)
     for view in json.loads((out / "state" / "views.json").read_text())["views"]:
         np.testing.assert_allclose(view["K"], _true_K(scene), rtol=0.012, atol=1.0)
+
+
+def test_a_given_scene_keeps_its_cameras_when_the_capture_states_other_intrinsics(
+    scene: Path, reconstructed: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Given the scene, a capture now stating the true intrinsics is not corrected again: the
+    correction records what it was measured from (``given``) and brings the scene's cameras."""
+    cameras = read_cameras(reconstructed / "poses.json")
+    assert cameras.intrinsics is not None and len(cameras.intrinsics["given"]) == 4
+    copy = Path(shutil.copytree(scene, tmp_path / "scene"))
+    manifest = json.loads((copy / "capture.json").read_text())
+    manifest["intrinsics"] = dict(manifest["true_intrinsics"])
+    (copy / "capture.json").write_text(json.dumps(manifest))
+    inputs = RunInputs.from_bundle(copy, scene=reconstructed / "scene.ply")
+    with caplog.at_level(logging.WARNING, logger="dcseg.reconstruct.poses"):
+        run_job(inputs, JobConfig(tiny_config()), tmp_path / "out")
+    for view in json.loads((tmp_path / "out" / "state" / "views.json").read_text())["views"]:
+        np.testing.assert_allclose(view["K"], _true_K(scene), rtol=0.012, atol=1.0)
+    assert "capture now states others" in caplog.text
 
 
 @pytest.mark.parametrize(

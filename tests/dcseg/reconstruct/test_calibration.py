@@ -76,6 +76,24 @@ def test_a_correction_scales_with_the_image_and_its_record_is_checked() -> None:
         Correction.of_record([0.9])  # type: ignore[arg-type]
 
 
+def test_a_correction_with_its_given_intrinsics_is_absolute() -> None:
+    """Recorded with the intrinsics it was measured from, a correction gives the same cameras
+    whatever the capture states later (scaled to its size), and says when it replaces them."""
+    fix = Correction(0.9, (4.0, -2.0), (640, 480), given=(600.0, 600.0, 319.5, 239.5))
+    stated = Intrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
+    fitted = Intrinsics(fx=540.0, fy=540.0, cx=323.5, cy=237.5, width=640, height=480)
+    assert fix.apply(stated) == fitted and not fix.replaces(stated)
+    other = replace(stated, fx=540.0, fy=540.0)  # a user giving the corrected ones later
+    assert fix.apply(other) == fitted and fix.replaces(other)
+    assert fix.apply(stated.scaled(320, 240)) == Correction(0.9, (4.0, -2.0), (640, 480)).apply(
+        stated.scaled(320, 240)
+    )
+    assert Correction.of_record(fix.record()) == fix
+    for value in ([600.0, 600.0, 319.5], [0.0, 600.0, 1.0, 1.0], ["a", 1, 1, 1]):
+        with pytest.raises(ValueError, match='"given"'):
+            Correction.of_record({**fix.record(), "given": value})
+
+
 def test_a_reconstruction_corrects_wrong_intrinsics_for_every_frame(capture: Capture) -> None:
     tiny = ReconstructConfig(
         iterations=4, holdout=4, train_downscale=1, init_pixel_stride=4, sh_degree=0,

@@ -7,7 +7,8 @@ blend with what lies behind it), which is what a depth map of the scene should s
 Colour is scored twice too: the raw PSNR of the render, and the colour-compensated PSNR after
 the 3x3-plus-bias colour map that best fits the held-out image in least squares
 (:func:`dcseg.reconstruct.exposure.compensated_psnr`): held-out views have no learned
-exposure, and exposure-varying benchmarks score them this way.
+exposure, and exposure-varying benchmarks score them this way. Given which pixels the training
+views observed (:mod:`dcseg.reconstruct.observed`), the PSNR over those pixels as well.
 """
 
 from __future__ import annotations
@@ -39,6 +40,9 @@ class ViewMetrics:
         compensated_psnr: colour PSNR after the best affine colour map (module docstring).
         neighbour_psnr: colour PSNR under the exposure predicted from the neighbouring trained
             frames (:func:`dcseg.reconstruct.exposure.interpolated`); NaN without exposure.
+        observed_psnr: colour PSNR over the pixels the training views observed (NaN when not
+            measured or none was observed).
+        observed_share: the share of the view's pixels they observed (NaN when not measured).
     """
 
     name: str
@@ -48,6 +52,8 @@ class ViewMetrics:
     depth_pixels: int
     compensated_psnr: float = math.nan
     neighbour_psnr: float = math.nan
+    observed_psnr: float = math.nan
+    observed_share: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -61,6 +67,9 @@ class Metrics:
         surface_depth_mae: the same for the surface depth.
         compensated_psnr: mean colour-compensated PSNR over views (NaN without views).
         neighbour_psnr: mean PSNR under the neighbours' exposure (NaN without exposure).
+        observed_psnr: mean PSNR over the pixels the training views observed (NaN when not
+            measured).
+        observed_share: mean share of the views' pixels they observed (NaN when not measured).
     """
 
     views: tuple[ViewMetrics, ...]
@@ -69,6 +78,8 @@ class Metrics:
     surface_depth_mae: float
     compensated_psnr: float = math.nan
     neighbour_psnr: float = math.nan
+    observed_psnr: float = math.nan
+    observed_share: float = math.nan
 
 
 def evaluate_view(
@@ -79,9 +90,11 @@ def evaluate_view(
     *,
     planar: bool = False,
     colour: torch.Tensor | None = None,
+    observed: torch.Tensor | None = None,
 ) -> ViewMetrics:
     """Render ``view`` and compare with its colour and valid depth (``planar``: ray-plane;
-    ``colour``: the view's predicted exposure transform, for ``neighbour_psnr``)."""
+    ``colour``: the view's predicted exposure transform, for ``neighbour_psnr``; ``observed``:
+    ``[H, W]`` the pixels the training views observed, for ``observed_psnr``)."""
     with torch.no_grad():
         out = render_view(gaussians, view.camera, degree, backend, planar=planar)
     surface = surface_depth(gaussians, view.camera, planar=planar)
@@ -93,7 +106,15 @@ def evaluate_view(
     neighbour = math.nan
     if colour is not None:
         neighbour = psnr(transformed(out.values, colour.to(out.values.device)), view.rgb)
-    return ViewMetrics(view.name, raw, mean_error, surface_error, count, compensated, neighbour)
+    seen_psnr, share = math.nan, math.nan
+    if observed is not None:
+        mask = observed.to(out.values.device)
+        share = float(mask.float().mean())
+        if bool(mask.any()):
+            seen_psnr = psnr(out.values[mask], view.rgb[mask])
+    return ViewMetrics(
+        view.name, raw, mean_error, surface_error, count, compensated, neighbour, seen_psnr, share
+    )
 
 
 def _mae(depth: torch.Tensor, truth: torch.Tensor, valid: torch.Tensor) -> float:
@@ -109,15 +130,18 @@ def evaluate(
     *,
     planar: bool = False,
     colours: torch.Tensor | None = None,
+    observed: Sequence[torch.Tensor] | None = None,
 ) -> Metrics:
     """Metrics of ``gaussians`` on ``views`` at the Gaussians' full SH degree; ``planar``: depth
     rendered as each flat Gaussian's ray-plane depth, as the reconstruction trained it;
-    ``colours``: ``[len(views), 6]`` every view's predicted exposure transform, or None."""
+    ``colours``: ``[len(views), 6]`` every view's predicted exposure transform, or None;
+    ``observed``: per view the ``[H, W]`` pixels the training views observed, or None."""
     degree = gaussians.sh_degree
     predicted = [None] * len(views) if colours is None else list(colours)
+    masks = [None] * len(views) if observed is None else list(observed)
     per_view = tuple(
-        evaluate_view(gaussians, v, degree, backend, planar=planar, colour=c)
-        for v, c in zip(views, predicted, strict=True)
+        evaluate_view(gaussians, v, degree, backend, planar=planar, colour=c, observed=m)
+        for v, c, m in zip(views, predicted, masks, strict=True)
     )
     pixels = sum(v.depth_pixels for v in per_view)
     mean_psnr = _mean([v.psnr for v in per_view])
@@ -125,7 +149,9 @@ def evaluate(
     surface = _pooled([(v.surface_depth_mae, v.depth_pixels) for v in per_view], pixels)
     compensated = _mean([v.compensated_psnr for v in per_view])
     neighbour = _mean([v.neighbour_psnr for v in per_view])
-    return Metrics(per_view, mean_psnr, mean, surface, compensated, neighbour)
+    seen = _mean([v.observed_psnr for v in per_view if not math.isnan(v.observed_psnr)])
+    share = _mean([v.observed_share for v in per_view])
+    return Metrics(per_view, mean_psnr, mean, surface, compensated, neighbour, seen, share)
 
 
 def _mean(values: Sequence[float]) -> float:

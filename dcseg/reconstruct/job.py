@@ -69,6 +69,8 @@ def _report(
         "psnr": _finite(metrics.psnr),
         "psnr_colour_compensated": _finite(metrics.compensated_psnr),
         "psnr_neighbour_exposure": _finite(metrics.neighbour_psnr),
+        "psnr_observed": _finite(metrics.observed_psnr),
+        "observed_share": _finite(metrics.observed_share),
         "depth_mae": _finite(metrics.depth_mae),
         "surface_depth_mae": _finite(metrics.surface_depth_mae),
         "views": [
@@ -77,6 +79,8 @@ def _report(
                 "psnr": _finite(v.psnr),
                 "psnr_colour_compensated": _finite(v.compensated_psnr),
                 "psnr_neighbour_exposure": _finite(v.neighbour_psnr),
+                "psnr_observed": _finite(v.observed_psnr),
+                "observed_share": _finite(v.observed_share),
                 "depth_mae": _finite(v.depth_mae),
                 "surface_depth_mae": _finite(v.surface_depth_mae),
                 "depth_pixels": v.depth_pixels,

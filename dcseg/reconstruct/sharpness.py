@@ -202,11 +202,11 @@ def covered(frames: Sequence[Frame], index: int, blurred: NDArray[np.bool_]) -> 
     lo, hi = max(0, index - NEIGHBOURS), min(len(frames), index + NEIGHBOURS + 1)
     for j in range(lo, hi):
         if j != index and not blurred[j]:
-            seen |= _sees(frames[j], world)
+            seen |= sees(frames[j], world)
     return float(seen.mean())
 
 
-def _sees(frame: Frame, world: NDArray[np.float64]) -> NDArray[np.bool_]:
+def sees(frame: Frame, world: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Which ``world`` points ``frame`` sees: in front, inside the image, and within 10 % of
     its depth at the nearest pixel (farther means occluded; no depth there counts as seen)."""
     w2c = np.linalg.inv(frame.c2w)

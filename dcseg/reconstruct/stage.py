@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -22,6 +22,7 @@ from dcseg.reconstruct.depth_filter import DepthFilter
 from dcseg.reconstruct.evaluate import Metrics, evaluate
 from dcseg.reconstruct.fit import FitResult, ProgressCallback, optimise
 from dcseg.reconstruct.init import init_from_frames, scene_extent
+from dcseg.reconstruct.observed import observed
 from dcseg.reconstruct.poses import change_stats, corrected_c2w
 from dcseg.reconstruct.rgbonly import rgb_only_init, rgb_only_report, sparse_colour_changes
 from dcseg.reconstruct.sensor import log_report, sensor_report
@@ -165,9 +166,11 @@ def fit_gaussians(
     start = time.perf_counter()
     held_out = [make_view(f, 1, device) for f in test]
     colours = _held_out_exposure(fitted, capture, train, test)
+    seen = _observed(capture, train, test, poses)
     metrics = evaluate(
-        fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth, colours=colours
-    )
+        fitted.gaussians, held_out, cfg.backend, planar=cfg.planar_depth, colours=colours,
+        observed=seen,
+    )  # fmt: skip
     seconds["eval"] = time.perf_counter() - start
     log.info("held-out %s", held_out_line(metrics))
     return Reconstruction(
@@ -186,6 +189,21 @@ def fit_gaussians(
         applied=cfg,
         cameras=_camera_file(cameras, train, test, poses),
     )
+
+
+def _observed(
+    capture: Capture,
+    train: Sequence[Frame],
+    test: Sequence[Frame],
+    poses: Mapping[str, NDArray[np.float64]] | None,
+) -> list[torch.Tensor] | None:
+    """Per held-out frame the pixels the training frames (at their refined poses) observed
+    (:func:`dcseg.reconstruct.observed.observed`); None for an RGB-only capture."""
+    if not capture.has_depth:
+        return None
+    if poses is not None:
+        train = tuple(replace(f, c2w=poses.get(f.name, f.c2w)) for f in train)
+    return [torch.from_numpy(observed(f, train)) for f in test]
 
 
 def _held_out_exposure(
@@ -292,6 +310,11 @@ def held_out_line(metrics: Metrics) -> str:
     parts = [f"PSNR {metrics.psnr:.2f} dB", f"colour-compensated {metrics.compensated_psnr:.2f} dB"]
     if math.isfinite(metrics.neighbour_psnr):
         parts.append(f"under the neighbours' exposure {metrics.neighbour_psnr:.2f} dB")
+    if math.isfinite(metrics.observed_share) and metrics.observed_share < 1.0:
+        parts.append(
+            f"over the {100 * metrics.observed_share:.1f} % of pixels training views saw "
+            f"{metrics.observed_psnr:.2f} dB"
+        )
     if math.isfinite(metrics.depth_mae):
         parts.append(
             f"depth MAE {metrics.depth_mae:.4f} m (surface depth {metrics.surface_depth_mae:.4f} m)"

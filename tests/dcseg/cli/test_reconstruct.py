@@ -54,6 +54,8 @@ def test_reconstruct_writes_ply_and_report(
     assert report["test_frames"] == ["frame000", "frame003"]
     assert [v["name"] for v in report["views"]] == report["test_frames"]
     assert report["psnr"] > 0 and report["depth_mae"] >= 0
+    assert 0.0 < report["observed_share"] <= 1.0 and report["psnr_observed"] > 0
+    assert all(0.0 < v["observed_share"] <= 1.0 for v in report["views"])
     assert set(report["seconds"]) == {
         "read", "registration", "init", "sensor", "train", "eval", "write"
     }  # fmt: skip

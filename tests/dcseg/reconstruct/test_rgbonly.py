@@ -85,6 +85,7 @@ def test_reconstructs_with_photometric_loss_and_reports_depth_off(rgb_only: Capt
     assert psnr is not None and 12.0 < psnr < 60.0 and psnr > with_depth["psnr"] - 1.5
     assert report["final_loss"] < 0.5 * _first_loss(rgb_only, cfg)  # colour is fitted
     assert report["depth_mae"] is None and report["surface_depth_mae"] is None
+    assert report["observed_share"] is None and report["psnr_observed"] is None  # needs depth
     assert report["depth_noise_at_1m"] is None
     assert all(v["depth_mae"] is None and v["depth_pixels"] == 0 for v in report["views"])
     depth = report["sensor"]["depth"]
@@ -144,6 +145,9 @@ def test_the_log_names_scores_that_were_not_measured() -> None:
     assert line.startswith("PSNR 24.50 dB, colour-compensated 25.00 dB")
     measured = held_out_line(Metrics((), 24.5, 0.012, 0.011, 25.0, 24.8))
     assert "neighbours' exposure 24.80 dB" in measured and "depth MAE 0.0120 m" in measured
+    assert "training views saw" not in measured  # not measured: not named
+    seen = held_out_line(Metrics((), 24.5, 0.012, 0.011, 25.0, 24.8, 26.1, 0.9))
+    assert "over the 90.0 % of pixels training views saw 26.10 dB" in seen
 
 
 def test_exposure_changes_are_measured_through_the_sparse_points(rgb_only: Capture) -> None:

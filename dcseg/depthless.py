@@ -31,7 +31,7 @@ SCALE_NOTE = (
     "the model's scale is arbitrary (structure from motion alone): unless capture.pose_scale "
     "(--pose-scale) gives metres per model unit, options and outputs in metres are in the "
     "model's units (evaluate.depth_tol and max_distance, budget min_translation, assign "
-    "support_min_extent, voxel sizes, the scene extent)"
+    "support_min_extent, ring_plane_tol and ring_radius, voxel sizes, the scene extent)"
 )
 """Why absolute sizes need care on an RGB-only COLMAP capture."""
 

@@ -14,15 +14,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from numpy.typing import NDArray
 
 from dcseg.affinity import AffinityResult, AffinityView, gated_features, train_affinity
+from dcseg.assign.config import AssignConfig
 from dcseg.assign.consistency import mask_agreement
 from dcseg.assign.objects import build_objects, stuff_ids
 from dcseg.assign.refinement import drop_inconsistent, supported_votes, trusted_settings
+from dcseg.assign.rings import release_rings
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.blend import BlendWeights
-from dcseg.cluster.features import as_numpy
+from dcseg.cluster.features import Clustering, as_numpy
 from dcseg.cluster.outliers import adaptive_radius
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import CacheConfig, PipelineConfig
@@ -36,6 +39,7 @@ from dcseg.progress import Progress, quiet, steps
 from dcseg.reconstruct.rgbonly import with_rendered_depth
 from dcseg.render import Camera
 from dcseg.render.blend_weights import blend_weights
+from dcseg.render.projection import quat_to_rotmat
 from dcseg.segment import EvidenceSum, label_map
 from dcseg.segment.views import cluster_maps, final_maps
 from dcseg.segmentation import Labels, Segmentation
@@ -187,6 +191,8 @@ def segment_scene(
         clustering, assignment = drop_inconsistent(
             evidence, clustering, assignment, (features, means, radius, stuff), a
         )
+    if a.ring_plane_tol > 0 and bool(labelled):
+        clustering = _release_rings(g, means, clustering, assignment, stuff, a, on_progress)
     semantic_ids = label_map(clustering.labels, assignment.labels)
     footprints = as_numpy(g.log_scales.max(dim=1).values.exp(), np.float64)
     instances, semantic_ids = build_objects(
@@ -210,6 +216,26 @@ def segment_scene(
         clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted,
         voted.unanimous, voted.confusions,
     )  # fmt: skip
+
+
+def _release_rings(
+    g: Gaussians,
+    means: NDArray[np.float64],
+    clustering: Clustering,
+    assignment: Assignment,
+    stuff: Sequence[int],
+    cfg: AssignConfig,
+    on_progress: Progress,
+) -> Clustering:
+    """``clustering`` with the support rings of objects given back to their supports
+    (:mod:`dcseg.assign.rings`; the Gaussians' disc normals are their shortest axes)."""
+    rotations = quat_to_rotmat(g.quats.detach())
+    shortest = g.log_scales.detach().argmin(dim=1)
+    normals = as_numpy(rotations[torch.arange(len(shortest)), :, shortest], np.float64)
+    labels, moved = release_rings(means, normals, clustering.labels, assignment.labels, stuff, cfg)
+    if moved:
+        on_progress("assign", 1.0, f"{moved} Gaussians of objects' support rings given back")
+    return Clustering(labels, clustering.centers, clustering.scores)
 
 
 def _report_consistency(assignment: Assignment, on_progress: Progress) -> None:

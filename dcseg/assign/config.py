@@ -121,6 +121,24 @@ class AssignConfig:
             / +6.4, heavy +0.4 / +6.4 / -0.6, realistic +1.8 / +4.4 / -0.6, clean unchanged.
             A group is only as right as its pooled evidence: on default layout 1 a group of
             ball Gaussians whose look-alike evidence said bowl became a bowl.
+        ring_plane_tol: give the support rings of objects back to their support
+            (:mod:`dcseg.assign.rings`): a Gaussian of an object's cluster (a labelled
+            cluster, not of a stuff class) within this distance (metres) of the local plane
+            of a bigger neighbouring labelled cluster (the table or floor it stands on, within
+            ``ring_radius``), with its disc facing that plane's normal (``ring_min_cosine``),
+            joins that cluster; ``ring_rounds`` rounds grow the support over the ring; 0 =
+            off. Box-prompted masks (Grounded-SAM style) take the table top round an object's
+            base in every view, so votes and evidence both name the ring the object.
+        ring_radius: ... the support's local plane is fitted to its Gaussians within this
+            distance (metres) of the candidate.
+        ring_min_cosine: ... smallest |cosine| between the candidate's disc normal and the
+            support's local plane normal.
+        ring_max_share: ... an object cluster that would lose more than this share of its
+            Gaussians keeps them all (it lies flat on its support: a poster on a wall, a
+            rug, a domino lying flat), unless Gaussians of its class that rise from the
+            support lie within ``ring_radius`` of them (then it is a piece of the support
+            that this object's masks took).
+        ring_rounds: ... rounds of growing the supports.
         objects: turn clusters into object instances (:mod:`dcseg.assign.instances`); False =
             one instance per cluster (the paper). Clusters stay available as the cluster level.
         contact_factor: two Gaussians touch when their centres are closer than this many times
@@ -274,6 +292,11 @@ class AssignConfig:
     support_min_extent: float = 0.5
     support_min_iou: float = 0.2
     regroup_min_gaussians: int = 50
+    ring_plane_tol: float = 0.015
+    ring_radius: float = 0.1
+    ring_min_cosine: float = 0.8
+    ring_max_share: float = 0.5
+    ring_rounds: int = 4
     objects: bool = True
     contact_factor: float = 6.0
     neighbours: int = 8
@@ -354,6 +377,7 @@ class AssignConfig:
             raise ValueError(
                 f"min_cluster_support must be in [0, 1], got {self.min_cluster_support}"
             )
+        self._check_rings()
         if self.min_area < 0:
             raise ValueError(f"min_area must be >= 0, got {self.min_area}")
         if self.label_maps not in ("gaussians", "clusters"):
@@ -378,6 +402,22 @@ class AssignConfig:
             raise ValueError(
                 f"unlabelled_id must be an int in [0, 65535] or None, got {unlabelled!r}"
             )
+
+    def _check_rings(self) -> None:
+        for name, length in (("ring_plane_tol", self.ring_plane_tol),
+                             ("ring_radius", self.ring_radius)):  # fmt: skip
+            if not length >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {length}")
+        if self.ring_plane_tol > 0 and not self.ring_radius > 0:
+            raise ValueError(
+                f"ring_radius must be > 0 with ring_plane_tol on, got {self.ring_radius}"
+            )
+        for name, share in (("ring_min_cosine", self.ring_min_cosine),
+                            ("ring_max_share", self.ring_max_share)):  # fmt: skip
+            if not 0.0 <= share <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {share}")
+        if self.ring_rounds < 1:
+            raise ValueError(f"ring_rounds must be >= 1, got {self.ring_rounds}")
 
     def _check_objects(self) -> None:
         positive = {"contact_factor": self.contact_factor, "neighbours": self.neighbours}

@@ -268,13 +268,14 @@ def test_inconsistent_gaussians_leave_their_clusters(run_dir: Path) -> None:
     n_classes = len(saved.vocabulary)
 
     def segment(ratio: float, regroup: int = 0) -> Segmentation:
-        # completion, objects, regrouping and the support check of the votes off: this test
-        # is about the consistency step alone (the support check runs only where the class
-        # evidence is summed, i.e. with a ratio > 0, and may relabel a whole cluster), and
-        # its label maps are the cluster maps through each cluster's class
+        # completion, objects, regrouping, the support rings and the support check of the
+        # votes off: this test is about the consistency step alone (the support check runs
+        # only where the class evidence is summed, i.e. with a ratio > 0, and may relabel a
+        # whole cluster), and its label maps are the cluster maps through each cluster's class
         assign = replace(
             base.assign, min_share_ratio=ratio, complete=False, objects=False,
             label_maps="clusters", regroup_min_gaussians=regroup, min_cluster_support=0.0,
+            ring_plane_tol=0.0,
         )  # fmt: skip
         return segment_scene(saved.trained, saved.semantic, n_classes, replace(base, assign=assign))
 

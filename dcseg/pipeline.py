@@ -231,7 +231,8 @@ def _release_rings(
     (:mod:`dcseg.assign.rings`; the Gaussians' disc normals are their shortest axes)."""
     rotations = quat_to_rotmat(g.quats.detach())
     shortest = g.log_scales.detach().argmin(dim=1)
-    normals = as_numpy(rotations[torch.arange(len(shortest)), :, shortest], np.float64)
+    rows = torch.arange(len(shortest), device=shortest.device)
+    normals = as_numpy(rotations[rows, :, shortest], np.float64)
     labels, moved = release_rings(means, normals, clustering.labels, assignment.labels, stuff, cfg)
     if moved:
         on_progress("assign", 1.0, f"{moved} Gaussians of objects' support rings given back")

@@ -336,6 +336,13 @@ class JobConfig:
     capture: CaptureOptions = field(default_factory=CaptureOptions)
 
 
+def capture_options(value: Any) -> CaptureOptions:
+    """:class:`CaptureOptions` from their JSON form (``run.json`` ``capture_options``, as
+    ``asdict`` wrote it); unknown keys or bad values raise ``ValueError``."""
+    options: CaptureOptions = _build(CaptureOptions, value, "capture")
+    return options
+
+
 def _build(stage: type[Any], value: Any, name: str) -> Any:
     if not isinstance(value, dict):
         raise ValueError(f"pipeline config {name!r} must be an object, got {type(value).__name__}")

@@ -18,7 +18,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from dcseg.config import CaptureOptions, capture_options
 from dcseg.errors import InputError
+from dcseg.io.poses import POSES_FILE
 
 READABLE_VERSIONS = (1, 2)
 """The ``state/views.json`` versions this reader understands (those of :mod:`dcseg.io.run_state`;
@@ -83,17 +85,29 @@ def _state_view(path: Path, meta: dict[str, Any]) -> DepthView | None:
     )
 
 
-def capture_views(path: Path) -> list[DepthView]:
-    """The frames of a capture (any layout :func:`dcseg.io.captures.read_capture` reads)."""
+def capture_views(path: Path, run: Path | None = None) -> list[DepthView]:
+    """The frames of a capture (any layout :func:`dcseg.io.captures.read_capture` reads).
+
+    Given the ``run`` made from it, the capture is read with the options the run recorded
+    (``run.json`` ``capture_options``: size, intrinsics, depth truncation ...) and seen by the
+    cameras its reconstruction fitted (``state/poses.json``: refined poses, depth registered
+    to the colour camera, corrected intrinsics), so the depth lies where its Gaussians do.
+    """
     from dcseg.io.captures import read_capture
 
-    capture = read_capture(path)
+    capture = read_capture(path, recorded_options(run))
     if not capture.has_depth:
         reason = (
             "an RGB-only capture has no depth to mesh: export from the run's state (its depth "
             "is rendered from the reconstruction), without --capture"
         )
         raise InputError.single(str(path), reason)
+    cameras = None if run is None else run / "state" / POSES_FILE
+    if cameras is not None and cameras.is_file():
+        from dcseg.io.poses import read_cameras
+        from dcseg.reconstruct.poses import with_cameras
+
+        capture = with_cameras(capture, read_cameras(cameras))
     views = []
     for frame in capture.frames:
         k = frame.intrinsics
@@ -101,6 +115,24 @@ def capture_views(path: Path) -> list[DepthView]:
         depth = np.asarray(frame.depth, dtype=np.float32)
         views.append(DepthView(frame.name, K, np.asarray(frame.c2w), _held(depth)))
     return views
+
+
+def recorded_options(run: Path | None) -> CaptureOptions:
+    """The capture options ``run.json`` recorded (``capture_options``); the defaults for a
+    run recorded before it did, or without a run.
+
+    Raises:
+        InputError: the record is malformed (names ``run.json`` and the field).
+    """
+    record = _record(run) if run is not None else None
+    stored = record.get("capture_options") if isinstance(record, dict) else None
+    if stored is None:
+        return CaptureOptions()
+    try:
+        return capture_options(stored)
+    except (TypeError, ValueError) as error:
+        where = f"{run / 'run.json' if run is not None else 'run.json'}: capture_options"
+        raise InputError.single(where, str(error)) from None
 
 
 def _held(depth: NDArray[np.float32]) -> Callable[[], NDArray[np.float32]]:
@@ -115,13 +147,13 @@ def depth_views(run: Path, capture: Path | None) -> list[DepthView]:
         InputError: none of these holds depth (the message says to pass ``--capture``).
     """
     if capture is not None:
-        return capture_views(capture)
+        return capture_views(capture, run)
     views = run_views(run)
     if views is not None:
         return views
     recorded = _recorded_capture(run)
     if recorded is not None and recorded.exists():
-        return capture_views(recorded)
+        return capture_views(recorded, run)
     reason = (
         "the run holds no depth (no state/views.json with views/<i>.npz)"
         + (f" and its capture {recorded} is gone" if recorded is not None else "")
@@ -130,11 +162,16 @@ def depth_views(run: Path, capture: Path | None) -> list[DepthView]:
     raise InputError.single(str(run), reason)
 
 
-def _recorded_capture(run: Path) -> Path | None:
+def _record(run: Path) -> Any:
+    """``run.json``'s content, or None when it is missing or not JSON."""
     try:
-        record = json.loads((run / "run.json").read_text(encoding="utf-8"))
+        return json.loads((run / "run.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+
+
+def _recorded_capture(run: Path) -> Path | None:
+    record = _record(run)
     inputs = record.get("inputs") if isinstance(record, dict) else None
     value = inputs.get("capture") if isinstance(inputs, dict) else None
     return Path(value) if isinstance(value, str) and value else None
@@ -144,7 +181,7 @@ def poses(run: Path, capture: Path | None = None) -> NDArray[np.float64] | None:
     """``[V, 4, 4]`` camera-to-world poses of the run's views (for the up axis), or None."""
     views = run_views(run)
     if views is None and capture is not None:
-        views = capture_views(capture)
+        views = capture_views(capture, run)
     if not views:
         return None
     return np.stack([v.c2w for v in views])

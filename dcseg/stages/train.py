@@ -9,6 +9,7 @@ the job has no class-agnostic masks (a capture-only upload is reconstructed, not
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
 from dcseg.errors import InputError
@@ -73,15 +74,29 @@ def train(run: StageRun) -> StageResult:
     record = {
         "inputs": run.inputs.describe(),
         "capture": {**plan.summary(), "undistortion": records(undistorted)},
+        "capture_options": asdict(run.config.capture),
         "reconstruction": _summary(run),
         "size_rules": describe(given, cfg, size),
     }
     saved = SavedRun(trained, {}, Vocabulary(()), previews, record)
     with run.clock.phase("write"):
         save_state(run.out, trained, {}, None, previews)
+        _keep_cameras(run)
         write_json(run.out / RUN_RECORD, base_record(saved, cfg, run.clock))
     run.handover.trained = saved
     return StageResult("done", f"train: {run.clock.seconds.get('train', 0):.0f} s")
+
+
+def _keep_cameras(run: StageRun) -> None:
+    """Keep the reconstruction's ``poses.json`` (when its cameras differ from the capture's)
+    as ``state/poses.json``: what reading the capture again needs to see it as the run did
+    (:func:`dcseg.export.depth.capture_views`)."""
+    from dcseg.io.folders import link_or_copy
+    from dcseg.io.poses import POSES_FILE
+
+    cameras = run.folder("reconstruct") / POSES_FILE
+    if cameras.is_file():
+        link_or_copy(cameras, run.out / "state" / POSES_FILE)
 
 
 def _scene(run: StageRun) -> tuple[Capture, CapturePlan, Gaussians]:

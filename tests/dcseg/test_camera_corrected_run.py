@@ -15,6 +15,7 @@ import pytest
 from dcseg.cli import main
 from dcseg.config import JobConfig, PipelineConfig, preset
 from dcseg.errors import InputError
+from dcseg.export.depth import depth_views
 from dcseg.io.poses import read_cameras
 from dcseg.jobs import RunInputs, run_job
 
@@ -66,6 +67,18 @@ def test_the_later_stages_render_with_the_corrected_intrinsics(scene: Path, run:
     views = json.loads((run / "state" / "views.json").read_text())["views"]
     for view in views:
         np.testing.assert_allclose(view["K"], _true_K(scene), rtol=0.012, atol=1.0)
+
+
+def test_depth_read_from_the_capture_sees_the_run_cameras(scene: Path, run: Path) -> None:
+    """Meshing from the capture (``dcseg export --capture``) reads it as the run did and
+    through the run's ``poses.json``: the corrected intrinsics, not the capture's."""
+    assert (run / "state" / "poses.json").is_file()
+    record = json.loads((run / "run.json").read_text())
+    assert record["capture_options"]["stride"] == 1
+    views = depth_views(run, scene)
+    assert len(views) == 16
+    for view in views:
+        np.testing.assert_allclose(view.K, _true_K(scene), rtol=0.012, atol=1.0)
 
 
 @pytest.fixture(scope="module")

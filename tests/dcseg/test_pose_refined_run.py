@@ -13,6 +13,7 @@ import pytest
 from dcseg.cli import main
 from dcseg.config import JobConfig, PipelineConfig, preset
 from dcseg.errors import InputError
+from dcseg.export.depth import depth_views
 from dcseg.io.poses import read_poses
 from dcseg.jobs import RunInputs, run_job
 from dcseg.reconstruct.poses import pose_change
@@ -66,6 +67,9 @@ def test_the_later_stages_use_the_refined_poses(scene: Path) -> None:
     assert set(used) == set(given)
     moved = [pose_change(given[name], used[name])[0] for name in used]
     assert min(moved) > 0.0 and max(moved) == pytest.approx(refinement["rotation_deg"]["max"])
+    # meshing from the capture (export --capture) uses the refined poses too
+    for view in depth_views(run, scene):
+        np.testing.assert_allclose(view.c2w, used[view.name], atol=1e-6)
 
 
 def test_without_refinement_the_capture_poses_are_kept(scene: Path) -> None:

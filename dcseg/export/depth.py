@@ -124,14 +124,14 @@ def recorded_options(run: Path | None) -> CaptureOptions:
     Raises:
         InputError: the record is malformed (names ``run.json`` and the field).
     """
-    record = _record(run) if run is not None else None
+    record = None if run is None else _record(run)
     stored = record.get("capture_options") if isinstance(record, dict) else None
-    if stored is None:
+    if run is None or stored is None:
         return CaptureOptions()
     try:
         return capture_options(stored)
     except (TypeError, ValueError) as error:
-        where = f"{run / 'run.json' if run is not None else 'run.json'}: capture_options"
+        where = f"{run / 'run.json'}: capture_options"
         raise InputError.single(where, str(error)) from None
 
 

@@ -47,6 +47,9 @@ RING_NEIGHBOURS = 48
 """Nearest Gaussians (within ``ring_radius``) looked at per candidate: enough for a local
 plane; the support grows over a wide ring in rounds."""
 
+RING_BLOCK = 32_768
+"""Candidates whose neighbours are looked up at once (a ``[block, RING_NEIGHBOURS]`` table)."""
+
 RING_SIZE_RATIO = 2.0
 """A support cluster holds at least this many times the object cluster's Gaussians."""
 
@@ -278,13 +281,28 @@ def _support_pairs(
 ) -> Pairs:
     """Pairs of a candidate and one of its :data:`RING_NEIGHBOURS` nearest Gaussians within
     ``radius`` that lies in another labelled cluster at least :data:`RING_SIZE_RATIO` times
-    the candidate's cluster."""
+    the candidate's cluster; :data:`RING_BLOCK` candidates at a time (bounds the neighbour
+    table on scenes of millions of Gaussians)."""
+    picks, nears = [], []
+    for start in range(0, len(candidates), RING_BLOCK):
+        block = candidates[start : start + RING_BLOCK]
+        pick, near = _block_pairs(block, labels, cloud, radius)
+        picks.append(pick + start)
+        nears.append(near)
+    if not picks:
+        return candidates[:0], candidates[:0]
+    return np.concatenate(picks), np.concatenate(nears)
+
+
+def _block_pairs(
+    block: NDArray[np.int64], labels: NDArray[np.int64], cloud: _Cloud, radius: float
+) -> Pairs:
     k = min(RING_NEIGHBOURS, len(cloud.means))
-    gap, index = cloud.tree.query(cloud.means[candidates], k=k, distance_upper_bound=radius)
-    found = np.isfinite(gap.reshape(len(candidates), k))
+    gap, index = cloud.tree.query(cloud.means[block], k=k, distance_upper_bound=radius)
+    found = np.isfinite(gap.reshape(len(block), k))
     pick = np.nonzero(found)[0].astype(np.int64)
-    near = index.reshape(len(candidates), k)[found].astype(np.int64)
-    own, other = labels[candidates][pick], labels[near]
+    near = index.reshape(len(block), k)[found].astype(np.int64)
+    own, other = labels[block][pick], labels[near]
     safe = np.maximum(other, 0)
     ok = (other >= 0) & (other != own) & (cloud.classes[safe] >= 0)
     ok &= cloud.sizes[safe] >= RING_SIZE_RATIO * cloud.sizes[own]

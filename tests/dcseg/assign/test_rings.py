@@ -6,6 +6,7 @@ import pytest
 from numpy.typing import NDArray
 
 from dcseg.assign.config import AssignConfig
+from dcseg.assign import rings
 from dcseg.assign.rings import release_rings
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -69,6 +70,17 @@ def test_the_ring_round_a_mug_goes_back_to_the_table() -> None:
     assert moved == band.sum() > 0
     assert (out[band] == 0).all()
     assert (out[~band] == labels[~band]).all()  # the mug's side and the table stay
+
+
+def test_candidates_looked_up_in_blocks_give_the_same_moves(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    means, normals, labels, _ = _mug_scene()
+    classes = np.array([TABLE, OBJECT])
+    whole = release_rings(means, normals, labels, classes, [], CFG)
+    monkeypatch.setattr(rings, "RING_BLOCK", 7)
+    blocks = release_rings(means, normals, labels, classes, [], CFG)
+    assert whole[1] == blocks[1] > 0 and np.array_equal(whole[0], blocks[0])
 
 
 def test_off_leaves_the_clusters_alone() -> None:

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from dcseg.assign.config import AssignConfig
 from dcseg.assign import rings
+from dcseg.assign.config import AssignConfig
 from dcseg.assign.rings import release_rings
 
 UP = np.array([0.0, 0.0, 1.0])

@@ -57,6 +57,9 @@ RING_ENCLOSE_RADIUS = 0.4
 """Distance (metres) within which an object's body must surround a moved Gaussian to keep
 it (:func:`_judge_moves`): a large tray's width, so that its far rim counts."""
 
+RING_BODY_POINTS = 4096
+"""Body Gaussians round one cluster's moves that the sector test looks at (:func:`_thinned`)."""
+
 RING_MAX_GAP = np.pi / 2
 """Widest empty sector (radians) round a Gaussian that its object's body still encloses."""
 
@@ -134,7 +137,7 @@ def release_rings(
         origin[moving[first]], planes[moving[first]] = out[moving[first]], normal[first]
         rises[moving[first]] = rise[first]
         out[moving] = support
-    back, beside = _judge_moves(means, out, origin, planes, classes, objects, cfg)
+    back, beside = _judge_moves(means, out, origin, planes, classes, objects, cloud.tree, cfg)
     lost = np.bincount(origin[(origin >= 0) & ~back], minlength=k)
     flat = (lost > cfg.ring_max_share * sizes) & ~beside
     flat |= _raised(origin, rises, back, k) > RING_MAX_RISE * cfg.ring_plane_tol
@@ -166,6 +169,7 @@ def _judge_moves(
     planes: NDArray[np.float64],
     classes: NDArray[np.int64],
     objects: NDArray[np.bool_],
+    tree: cKDTree,
     cfg: AssignConfig,
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """Per moved Gaussian (``origin`` >= 0), whether the objects round it enclose it
@@ -176,8 +180,10 @@ def _judge_moves(
     where most of its class's other Gaussians within :data:`RING_ENCLOSE_RADIUS` lie (a flat
     piece of a ball has the ball above it). The objects round a moved Gaussian are the
     Gaussians of object clusters (labelled, not stuff) that did not move and stand more than
-    ``ring_plane_tol`` above that plane; seen along the normal, they enclose it when within
-    :data:`RING_ENCLOSE_RADIUS` they leave no empty sector wider than :data:`RING_MAX_GAP`.
+    ``ring_plane_tol`` above that plane, among the Gaussians (found with ``tree``) within
+    :data:`RING_ENCLOSE_RADIUS` of the cluster's moved ones; seen along the normal, they
+    enclose it when within :data:`RING_ENCLOSE_RADIUS` they leave no empty sector wider
+    than :data:`RING_MAX_GAP`.
     A ring lies round an object's base, the object on one side; a tray's bottom lies within
     its rim and a ball's underside under the ball, which hold them. A flat cluster with
     Gaussians of its class more than ``2 ring_plane_tol`` off the plane beside it is a piece
@@ -189,28 +195,46 @@ def _judge_moves(
     kept = member & (origin < 0)
     of_class = np.where(kept, classes[np.where(member, labels, 0)], -1)
     solid = kept & objects[np.where(member, labels, 0)]
-    for k in np.unique(origin[origin >= 0]):
-        moved = np.flatnonzero(origin == k)
+    for k, moved in _moved_groups(origin):
         signs = np.sign(planes[moved] @ planes[moved[0]])  # eigenvectors: either sign
         normal = (planes[moved] * signs[:, None]).sum(axis=0)
         if not np.linalg.norm(normal) > 0:
             continue
         normal /= np.linalg.norm(normal)
-        level = float(np.median(means[moved] @ normal))
-        height = means @ normal - level
-        if _below(
-            means[moved].mean(axis=0), means[of_class == classes[k]], height[of_class == classes[k]]
-        ):
+        centre = means[moved].mean(axis=0)
+        reach = float(np.linalg.norm(means[moved] - centre, axis=1).max()) + RING_ENCLOSE_RADIUS
+        near = np.asarray(tree.query_ball_point(centre, reach), dtype=np.int64)
+        points, same = means[near], of_class[near] == classes[k]
+        height = points @ normal - float(np.median(means[moved] @ normal))
+        if _below(centre, points[same], height[same]):
             normal, height = -normal, -height  # the object's body lies on the other side
-        bodies = means[solid & (height > cfg.ring_plane_tol)]
+        bodies = _thinned(points[solid[near] & (height > cfg.ring_plane_tol)])
         if len(bodies):
             axes = _plane_axes(normal)
             back[moved] = _enclosed(means[moved] @ axes, bodies @ axes)
-        own = means[(of_class == classes[k]) & (np.abs(height) > 2.0 * cfg.ring_plane_tol)]
+        own = points[same & (np.abs(height) > 2.0 * cfg.ring_plane_tol)]
         if len(own):
             gap, _ = cKDTree(own).query(means[moved], distance_upper_bound=cfg.ring_radius)
             beside[k] = bool(np.isfinite(gap).any())
     return back, beside
+
+
+def _thinned(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """At most :data:`RING_BODY_POINTS` of ``points``, evenly strided: the sectors round a
+    Gaussian need no more, and a dense scene would hand thousands to each of them."""
+    step = -(-len(points) // RING_BODY_POINTS)
+    return points[::step] if step > 1 else points
+
+
+def _moved_groups(origin: NDArray[np.int64]) -> list[tuple[int, NDArray[np.int64]]]:
+    """``(cluster, indices)`` of the Gaussians each cluster gave up (``origin`` >= 0), by
+    cluster, in one sort rather than a pass over every Gaussian per cluster."""
+    moved = np.flatnonzero(origin >= 0)
+    if not len(moved):
+        return []
+    order = moved[np.argsort(origin[moved], kind="stable")]
+    clusters, starts = np.unique(origin[order], return_index=True)
+    return list(zip(clusters.tolist(), np.split(order, starts[1:]), strict=True))
 
 
 def _below(

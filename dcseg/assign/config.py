@@ -130,8 +130,8 @@ class AssignConfig:
             off. Box-prompted masks (Grounded-SAM style) take the table top round an object's
             base in every view, so votes and evidence both name the ring the object. 24 views
             320x240, seeds 0/10 (``benchmarks/results/support_rings.json``), 3D labels / maps /
-            instance F1, off -> 1.5 cm, held-out layouts: detector 5, 7, 9, 10 +1.5 / +1.6 /
-            +7.4 on average (-0.3 to +2.3 on 3D labels); realistic 7, lowres 7, heavy 9, 10,
+            instance F1, off -> 1.5 cm, held-out layouts: detector 5, 7, 9, 10 +1.6 / +1.6 /
+            +7.4 on average (-0.3 to +2.4 on 3D labels); realistic 7, lowres 7, heavy 9, 10,
             default 3, 5, clean 3 -0.3 / -0.2 / -0.3 (worst -0.8). Chosen on detector 8 (1.0
             and 2.0 cm, 5 cm radius scored lower); the enclosure, rise and flat-cluster checks
             of :mod:`dcseg.assign.rings` after heavy 4, 5 and lowres 8 lost objects' parts.

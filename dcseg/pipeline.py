@@ -191,8 +191,11 @@ def segment_scene(
         clustering, assignment = drop_inconsistent(
             evidence, clustering, assignment, (features, means, radius, stuff), a
         )
+    ring_moves = 0
     if a.ring_plane_tol > 0 and bool(labelled):
-        clustering = _release_rings(g, means, clustering, assignment, stuff, a, on_progress)
+        clustering, ring_moves = _release_rings(g, means, clustering, assignment, stuff, a)
+        if ring_moves:
+            on_progress("assign", 1.0, f"{ring_moves} Gaussians of support rings given back")
     semantic_ids = label_map(clustering.labels, assignment.labels)
     footprints = as_numpy(g.log_scales.max(dim=1).values.exp(), np.float64)
     instances, semantic_ids = build_objects(
@@ -214,7 +217,7 @@ def segment_scene(
         }
     return Segmentation(
         clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted,
-        voted.unanimous, voted.confusions,
+        voted.unanimous, voted.confusions, ring_moves,
     )  # fmt: skip
 
 
@@ -225,18 +228,16 @@ def _release_rings(
     assignment: Assignment,
     stuff: Sequence[int],
     cfg: AssignConfig,
-    on_progress: Progress,
-) -> Clustering:
+) -> tuple[Clustering, int]:
     """``clustering`` with the support rings of objects given back to their supports
-    (:mod:`dcseg.assign.rings`; the Gaussians' disc normals are their shortest axes)."""
+    (:mod:`dcseg.assign.rings`; the Gaussians' disc normals are their shortest axes), and
+    how many Gaussians moved."""
     rotations = quat_to_rotmat(g.quats.detach())
     shortest = g.log_scales.detach().argmin(dim=1)
     rows = torch.arange(len(shortest), device=shortest.device)
     normals = as_numpy(rotations[rows, :, shortest], np.float64)
     labels, moved = release_rings(means, normals, clustering.labels, assignment.labels, stuff, cfg)
-    if moved:
-        on_progress("assign", 1.0, f"{moved} Gaussians of objects' support rings given back")
-    return Clustering(labels, clustering.centers, clustering.scores)
+    return Clustering(labels, clustering.centers, clustering.scores), moved
 
 
 def _report_consistency(assignment: Assignment, on_progress: Progress) -> None:

@@ -55,6 +55,8 @@ class Segmentation:
             no vote can tell. NaN when not measured.
         confusions: clusters whose voted class was taken for a consistent confusion and
             replaced (``AssignConfig.confusion_min_share``).
+        rings_given_back: Gaussians of objects' support rings given back to their supports
+            (``AssignConfig.ring_plane_tol``, :mod:`dcseg.assign.rings`).
     """
 
     clustering: Clustering
@@ -67,6 +69,7 @@ class Segmentation:
     evidence_trusted: bool = False
     unanimous: float = float("nan")
     confusions: int = 0
+    rings_given_back: int = 0
 
     @property
     def n_clusters(self) -> int:

@@ -156,9 +156,8 @@ def _raised(
     that stay moved (0 for none): a ring scatters about the support's plane, a raised face
     (a block's top, a tray's bottom) sits above it."""
     out = np.zeros(k)
-    moved = (origin >= 0) & ~back
-    for c in np.unique(origin[moved]):
-        out[c] = float(np.median(rises[moved & (origin == c)]))
+    for c, moved in _moved_groups(np.where(back, -1, origin)):
+        out[c] = float(np.median(rises[moved]))
     return out
 
 

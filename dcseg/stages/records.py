@@ -58,6 +58,7 @@ def segmented_record(
             "evidence_trusted": segmentation.evidence_trusted,
             "unanimous_clusters": round(segmentation.unanimous, 4),  # NaN -> null
             "confusions_undone": segmentation.confusions,
+            "ring_gaussians_given_back": segmentation.rings_given_back,
         },
         "metrics_summary": None if metrics is None else metrics["summary"],
     }

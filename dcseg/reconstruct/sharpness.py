@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from dcseg.reconstruct.init import backproject
 from dcseg.types import Frame
 
 log = logging.getLogger(__name__)
@@ -189,16 +190,10 @@ def covered(frames: Sequence[Frame], index: int, blurred: NDArray[np.bool_]) -> 
     """The share of frame ``index``'s depth pixels (every :data:`COVER_GRID`-th) that at
     least one sharp frame among its :data:`NEIGHBOURS` on each side sees unoccluded (1.0
     when it has no depth: nothing to lose)."""
-    src = frames[index]
-    g = COVER_GRID
-    depth = np.asarray(src.depth[::g, ::g], dtype=np.float64)
-    rows, cols = np.nonzero(depth > 0)
-    if len(rows) == 0:
+    world, _ = backproject(frames[index], COVER_GRID)
+    if len(world) == 0:
         return 1.0
-    z, k = depth[rows, cols], src.intrinsics
-    cam = np.stack([(cols * g - k.cx) / k.fx * z, (rows * g - k.cy) / k.fy * z, z], axis=1)
-    world = cam @ src.c2w[:3, :3].T + src.c2w[:3, 3]
-    seen = np.zeros(len(z), dtype=bool)
+    seen = np.zeros(len(world), dtype=bool)
     lo, hi = max(0, index - NEIGHBOURS), min(len(frames), index + NEIGHBOURS + 1)
     for j in range(lo, hi):
         if j != index and not blurred[j]:

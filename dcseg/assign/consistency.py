@@ -241,11 +241,13 @@ def rejected_groups(
     """Connected groups of Gaussians that one cluster's evidence test rejected, with a class.
 
     ``origin`` is the cluster a Gaussian left (-1 = it left none). Gaussians that left the same
-    cluster and lie within ``radius`` of each other are connected; a connected group of at
-    least ``min_size`` with any evidence is kept and takes the class its pooled evidence
-    supports most; the rest are in no group. Used after the consistency step
-    (``AssignConfig.regroup_min_gaussians``): an object that the class-agnostic masks merged
-    with its support leaves the support's cluster as one such group.
+    cluster, lie within ``radius`` of each other and whose own evidence supports the same
+    class most are connected; a connected group of at least ``min_size`` with any evidence is
+    kept and takes the class its pooled evidence supports most; the rest are in no group. Used
+    after the consistency step (``AssignConfig.regroup_min_gaussians``): an object that the
+    class-agnostic masks merged with its support leaves the support's cluster as one such
+    group, and a mug standing on a tray that both left a table's cluster leaves as a group
+    of its own beside the tray's.
 
     Args:
         means: ``[N, 3]`` Gaussian centres.
@@ -256,10 +258,10 @@ def rejected_groups(
 
     Example:
         >>> means = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5.0, 0, 0]])
-        >>> ev = np.array([[0.0, 1.0], [0.2, 0.8], [0.5, 0.5], [1.0, 0.0]])
+        >>> ev = np.array([[0.0, 1.0], [0.2, 0.8], [0.4, 0.6], [1.0, 0.0]])
         >>> g = rejected_groups(means, np.array([0, 0, 0, 0]), ev, radius=0.15, min_size=2)
         >>> g.ids.tolist(), g.classes.tolist(), g.shares.round(2).tolist()
-        ([0, 0, 0, -1], [1], [0.77])
+        ([0, 0, 0, -1], [1], [0.8])
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -281,7 +283,9 @@ def rejected_groups(
     if len(rows) < min_size:
         return Groups(ids, np.zeros(0, np.int64), np.zeros(0))
     pairs = cKDTree(points[rows]).query_pairs(radius, output_type="ndarray")
-    pairs = pairs[src[rows[pairs[:, 0]]] == src[rows[pairs[:, 1]]]]
+    top = ev[rows].argmax(axis=1)  # an object merged with its support leaves it beside
+    a, b = pairs[:, 0], pairs[:, 1]  # other rejected pieces: each keeps to its own class
+    pairs = pairs[(src[rows[a]] == src[rows[b]]) & (top[a] == top[b])]
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(rows),) * 2)
     _, comp = connected_components(graph, directed=False)
     pooled = pooled_evidence(comp, ev[rows], int(comp.max()) + 1)

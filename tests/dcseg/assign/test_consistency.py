@@ -123,7 +123,7 @@ def test_exception_unsupported_shapes_and_support() -> None:
 
 def test_rejected_groups_keep_the_class_their_evidence_pools_to() -> None:
     """Gaussians 0-3 left cluster 0 and touch (0.1 apart): one group, class 1 by its pooled
-    evidence though Gaussian 3 alone says class 0. Gaussians 4-5 left cluster 0 too but sit
+    evidence, which Gaussian 3 supports less. Gaussians 4-5 left cluster 0 too but sit
     5 m away: a group of 2, below ``min_size``. Gaussians 6-7 touch 0-3 but left cluster 1:
     another group, also too small. Gaussian 8 left nothing."""
     means = np.zeros((9, 3))
@@ -131,14 +131,31 @@ def test_rejected_groups_keep_the_class_their_evidence_pools_to() -> None:
     means[4:6, 0] = [5.0, 5.1]
     means[6:8, 0] = [0.35, 0.4]
     origin = np.array([0, 0, 0, 0, 0, 0, 1, 1, -1])
-    evidence = np.array([[0.0, 1.0]] * 3 + [[0.9, 0.1]] + [[1.0, 0.0]] * 5)
+    evidence = np.array([[0.0, 1.0]] * 3 + [[0.4, 0.6]] + [[1.0, 0.0]] * 5)
     groups = rejected_groups(means, origin, evidence, radius=0.15, min_size=3)
     assert groups.ids.tolist() == [0, 0, 0, 0, -1, -1, -1, -1, -1]
     assert groups.classes.tolist() == [1]
-    assert groups.shares == pytest.approx([3.1 / 4])
+    assert groups.shares == pytest.approx([3.6 / 4])
     smaller = rejected_groups(means, origin, evidence, radius=0.15, min_size=2)
     assert smaller.ids.tolist() == [0, 0, 0, 0, 1, 1, 2, 2, -1]
     assert smaller.classes.tolist() == [1, 0, 0]
+
+
+def test_rejected_groups_split_touching_pieces_their_own_evidence_names_apart() -> None:
+    """A tray (Gaussians 0-5, evidence class 1) and the mug on it (6-9, class 2) both left
+    the table's cluster 0 and touch: two groups, not one group of the tray's class. Gaussian
+    10 touches the mug but its own evidence says tray: alone, it is in no group."""
+    means = np.zeros((11, 3))
+    means[:6, 0] = 0.1 * np.arange(6)
+    means[6:10, 0] = 0.55 + 0.1 * np.arange(4)
+    means[10, 0] = 0.9
+    evidence = np.zeros((11, 3))
+    evidence[:6, 1] = 1.0
+    evidence[6:10, 2] = 1.0
+    evidence[10] = [0.0, 0.6, 0.4]
+    groups = rejected_groups(means, np.zeros(11, int), evidence, radius=0.15, min_size=3)
+    assert groups.ids.tolist() == [0] * 6 + [1] * 4 + [-1]
+    assert groups.classes.tolist() == [1, 2]
 
 
 def test_rejected_groups_without_evidence_or_members_stay_unlabelled() -> None:

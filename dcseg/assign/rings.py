@@ -127,15 +127,17 @@ def release_rings(
     rises = np.zeros(len(labels))
     centres, _ = cluster_planes(means, labels, k)
     cloud = _Cloud(means, normals, cKDTree(means), sizes, classes, centres)
+    feet, faces = means.copy(), normals.copy()  # moved ones: on the plane they joined
     for _ in range(cfg.ring_rounds):
         member = out >= 0
         candidates = np.flatnonzero(member & objects[np.where(member, out, 0)])
-        moving, support, normal, rise = _on_support(candidates, out, cloud, cfg)
+        moving, support, normal, rise = _on_support(candidates, out, (feet, faces), cloud, cfg)
         if not len(moving):
             break
         first = origin[moving] < 0
         origin[moving[first]], planes[moving[first]] = out[moving[first]], normal[first]
         rises[moving[first]] = rise[first]
+        feet[moving], faces[moving] = means[moving] - rise[:, None] * normal, normal
         out[moving] = support
     back, beside = _judge_moves(means, out, origin, planes, classes, objects, cloud.tree, cfg)
     lost = np.bincount(origin[(origin >= 0) & ~back], minlength=k)
@@ -271,12 +273,16 @@ def _plane_axes(normal: NDArray[np.float64]) -> NDArray[np.float64]:
 def _on_support(
     candidates: NDArray[np.int64],
     labels: NDArray[np.int64],
+    anchors: tuple[NDArray[np.float64], NDArray[np.float64]],
     cloud: _Cloud,
     cfg: AssignConfig,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
     """The candidates lying flat in a bigger neighbouring cluster's local plane, that
     cluster, that plane's unit normal (pointing to the side of the candidate's cluster
-    centre) and the candidate's signed offset along it, for each."""
+    centre) and the candidate's signed offset along it, for each. The plane is fitted to the
+    neighbours' ``anchors`` (``[N, 3]`` points and ``[N, 3]`` normals): a Gaussian moved in
+    an earlier round counts as the point where it meets the plane it joined, with that
+    plane's normal, so that the plane cannot climb an object's side round by round."""
     m = len(candidates)
     if m == 0:
         return candidates, candidates, np.zeros((0, 3)), np.zeros(0)
@@ -285,7 +291,8 @@ def _on_support(
     same = labels[near] == support[pick]
     pick, near = pick[same], near[same]
     means, normals = cloud.means, cloud.normals
-    centroid, normal, agreement = _local_planes(pick, means[near], normals[near], m)
+    feet, faces = anchors
+    centroid, normal, agreement = _local_planes(pick, feet[near], faces[near], m)
     towards = np.einsum("ij,ij->i", normal, cloud.centres[labels[candidates]] - centroid)
     normal *= np.where(towards < 0, -1.0, 1.0)[:, None]  # pointing to the object's side
     enough = np.bincount(pick, minlength=m) >= RING_MIN_NEIGHBOURS

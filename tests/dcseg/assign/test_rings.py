@@ -222,3 +222,20 @@ def test_ring_radius_must_be_positive_when_on() -> None:
     with pytest.raises(ValueError, match="ring_radius"):
         AssignConfig(ring_plane_tol=0.01, ring_radius=0.0)
     assert AssignConfig(ring_plane_tol=0.0, ring_radius=0.0).ring_radius == 0.0
+
+
+def test_rounds_do_not_climb_a_low_ramp() -> None:
+    """A 30 cm ramp rising 6 cm from the floor (discs tilted 11 deg, facing up enough): its
+    foot lies in the floor's plane and goes back to the floor, but later rounds measure
+    against the floor's plane, not against the ramp Gaussians moved before, so nothing more
+    than ``ring_plane_tol`` (and the 3 mm scatter) above the floor moves."""
+    floor = _grid(0.0, 1.0, 0.0, 1.0, 0.0)
+    inside = (np.abs(floor[:, 0] - 0.45) < 0.16) & (np.abs(floor[:, 1] - 0.45) < 0.16)
+    ramp = _grid(0.3, 0.6, 0.3, 0.6, 0.0, step=0.01)
+    ramp[:, 2] = 0.2 * (ramp[:, 0] - 0.3)
+    slope = np.array([-0.2, 0.0, 1.0]) / np.hypot(0.2, 1.0)
+    means, normals, labels = _scene([(floor[~inside], UP, 0), (ramp, slope, 1)])
+    out, moved = release_rings(means, normals, labels, np.array([TABLE, OBJECT]), [], CFG)
+    gone = (labels == 1) & (out == 0)
+    assert moved == gone.sum() > 0
+    assert means[gone, 2].max() < CFG.ring_plane_tol + 0.003

@@ -9,7 +9,9 @@ object rises out of it.
 
 :func:`release_rings` moves a Gaussian of an object's cluster to a bigger neighbouring cluster
 (the support) when it lies in the support's local plane and its own disc lies flat in that
-plane; rounds grow the support outwards over the ring. Then the moves are judged
+plane; rounds grow the support outwards over the ring, a Gaussian moved before counting
+where it meets the plane it joined (so rounds cannot climb the side of a low object, a block
+lying flat, a centimetre a round). Then the moves are judged
 (:func:`_judge_moves`): what the object's body surrounds (a tray's bottom within its rim)
 goes back to it; a cluster whose moved part sits above the support's plane rather than about
 it (a block lying flat) keeps it all; and so does a cluster that would lose more than

@@ -204,20 +204,21 @@ def _judge_moves(
         if not np.linalg.norm(normal) > 0:
             continue
         normal /= np.linalg.norm(normal)
-        centre = means[moved].mean(axis=0)
-        reach = float(np.linalg.norm(means[moved] - centre, axis=1).max()) + RING_ENCLOSE_RADIUS
+        at = means[moved]
+        centre = at.mean(axis=0)
+        reach = float(np.linalg.norm(at - centre, axis=1).max()) + RING_ENCLOSE_RADIUS
         near = np.asarray(tree.query_ball_point(centre, reach), dtype=np.int64)
         points, same = means[near], of_class[near] == classes[k]
-        height = points @ normal - float(np.median(means[moved] @ normal))
+        height = points @ normal - float(np.median(at @ normal))
         if _below(centre, points[same], height[same]):
             normal, height = -normal, -height  # the object's body lies on the other side
         bodies = _thinned(points[solid[near] & (height > cfg.ring_plane_tol)])
         if len(bodies):
             axes = _plane_axes(normal)
-            back[moved] = _enclosed(means[moved] @ axes, bodies @ axes)
+            back[moved] = _enclosed(at @ axes, bodies @ axes)
         own = points[same & (np.abs(height) > 2.0 * cfg.ring_plane_tol)]
         if len(own):
-            gap, _ = cKDTree(own).query(means[moved], distance_upper_bound=cfg.ring_radius)
+            gap, _ = cKDTree(own).query(at, distance_upper_bound=cfg.ring_radius)
             beside[k] = bool(np.isfinite(gap).any())
     return back, beside
 

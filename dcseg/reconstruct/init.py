@@ -31,6 +31,15 @@ def backproject(
     Returns:
         ``([M, 3] points, [M, 3] colours)``, float64.
     """
+    world, (u, v) = backproject_points(frame, stride, depth_filter)
+    return world, frame.rgb[v, u].astype(np.float64) / 255.0
+
+
+def backproject_points(
+    frame: Frame, stride: int = 1, depth_filter: DepthFilter | None = None
+) -> tuple[Points, tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """:func:`backproject` without the colours: ``[M, 3]`` world points and their pixels'
+    ``(u, v)`` columns and rows."""
     grid = (
         frame.depth[::stride, ::stride]
         if depth_filter is None
@@ -43,8 +52,7 @@ def backproject(
     k = frame.intrinsics
     cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
     world = cam @ frame.c2w[:3, :3].T + frame.c2w[:3, 3]
-    colours = frame.rgb[v, u].astype(np.float64) / 255.0
-    return world, colours
+    return world, (u, v)
 
 
 def scene_extent(frames: Sequence[Frame], stride: int = 4) -> float:
@@ -58,7 +66,7 @@ def scene_extent(frames: Sequence[Frame], stride: int = 4) -> float:
     centre = centres.mean(axis=0)
     camera_radius = float(np.linalg.norm(centres - centre, axis=1).max())
     points = np.concatenate(
-        [backproject(f, stride)[0] for f in frames[:: max(1, len(frames) // 10)]]
+        [backproject_points(f, stride)[0] for f in frames[:: max(1, len(frames) // 10)]]
     )
     surface_radius = 0.0
     if len(points):

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from dcseg.reconstruct.init import backproject
+from dcseg.reconstruct.init import backproject_points
 from dcseg.reconstruct.sharpness import sees
 from dcseg.types import Frame
 
@@ -29,7 +29,7 @@ def observed(frame: Frame, train: Sequence[Frame], grid: int = GRID) -> NDArray[
     """``[H, W]``: whether each pixel of ``frame`` has depth and shows what a frame of ``train``
     saw."""
     valid = frame.depth[::grid, ::grid] > 0
-    world, _ = backproject(frame, grid)  # the valid grid pixels, in np.nonzero order
+    world, _ = backproject_points(frame, grid)  # the valid grid pixels, in np.nonzero order
     seen = np.zeros(len(world), dtype=bool)
     for other in train:
         seen |= sees(other, world)

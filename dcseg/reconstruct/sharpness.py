@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from dcseg.reconstruct.init import backproject
+from dcseg.reconstruct.init import backproject_points
 from dcseg.types import Frame
 
 log = logging.getLogger(__name__)
@@ -190,7 +190,7 @@ def covered(frames: Sequence[Frame], index: int, blurred: NDArray[np.bool_]) -> 
     """The share of frame ``index``'s depth pixels (every :data:`COVER_GRID`-th) that at
     least one sharp frame among its :data:`NEIGHBOURS` on each side sees unoccluded (1.0
     when it has no depth: nothing to lose)."""
-    world, _ = backproject(frames[index], COVER_GRID)
+    world, _ = backproject_points(frames[index], COVER_GRID)
     if len(world) == 0:
         return 1.0
     seen = np.zeros(len(world), dtype=bool)

@@ -31,27 +31,30 @@ EDGE_RANGE = 0.05
 TAILS = (0.05, 0.1, 0.2, 0.5)
 """Error thresholds (metres) whose pixel share and MAE contribution are reported."""
 
+RENDER = "render_view"
+"""The renderer :mod:`dcseg.reconstruct.evaluate` imports; ``run`` wraps it to keep renders."""
+
 SHIFT = 4
 """Largest whole-image shift (pixels) of the render searched per view."""
 
 
 def run(dump: Path, argv: list[str]) -> int:
-    """``dcseg reconstruct ARGV`` with every held-out view's render saved to ``dump``."""
-    import torch
-
+    """``dcseg reconstruct ARGV`` with every held-out view's render saved to ``dump`` (the
+    render :func:`dcseg.reconstruct.evaluate.evaluate_view` scores, kept as it passes)."""
     import dcseg.reconstruct.evaluate as evaluate
     from dcseg.cli import main
-    from dcseg.reconstruct.fit import render_view
 
     dump.mkdir(parents=True, exist_ok=True)
-    score = evaluate.evaluate_view
+    score, draw = evaluate.evaluate_view, getattr(evaluate, RENDER)
+    last: list[Any] = []
+
+    def keeping(*args: Any, **kw: Any) -> Any:
+        last[:] = [draw(*args, **kw)]
+        return last[0]
 
     def saving(gaussians: Any, view: Any, degree: int, backend: Any, **kw: Any) -> Any:
         metrics = score(gaussians, view, degree, backend, **kw)
-        with torch.no_grad():
-            out = render_view(
-                gaussians, view.camera, degree, backend, planar=kw.get("planar", False)
-            )
+        out = last[0]
         np.savez_compressed(
             dump / f"{view.name}.npz", depth=out.depth.cpu().numpy().squeeze(),
             truth=view.depth.cpu().numpy().squeeze(), render=out.values.cpu().numpy(),
@@ -60,7 +63,12 @@ def run(dump: Path, argv: list[str]) -> int:
         return metrics
 
     evaluate.evaluate_view = saving  # type: ignore[assignment]
-    return main(["reconstruct", *argv])
+    setattr(evaluate, RENDER, keeping)
+    try:
+        return main(["reconstruct", *argv])
+    finally:
+        evaluate.evaluate_view = score  # type: ignore[assignment]
+        setattr(evaluate, RENDER, draw)
 
 
 def _edges(truth: NDArray[Any]) -> NDArray[np.bool_]:

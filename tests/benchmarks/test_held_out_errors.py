@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 import dcseg.io.captures
-from benchmarks.held_out_errors import main, summarise
+import dcseg.reconstruct.evaluate as evaluate
+from benchmarks.held_out_errors import RENDER, main, summarise
 from tests.dcseg.cli.test_reconstruct import planned_reader
 
 
@@ -60,3 +62,22 @@ def test_run_saves_every_held_out_view(tmp_path: Path, monkeypatch: pytest.Monke
     saved = np.load(dump / f"{report['test_frames'][0]}.npz")
     assert saved["depth"].shape == saved["truth"].shape == (18, 24)
     assert saved["render"].shape == saved["image"].shape == (18, 24, 3)
+
+
+def test_run_saves_the_scored_render_and_restores_the_evaluation(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(dcseg.io.captures, "read_planned", planned_reader([], []))
+    scored, drawn = evaluate.evaluate_view, getattr(evaluate, RENDER)
+    calls: list[int] = []
+
+    def counting(*args: Any, **kw: Any) -> Any:
+        calls.append(1)
+        return drawn(*args, **kw)
+
+    monkeypatch.setattr(evaluate, RENDER, counting)
+    argv = [str(tmp_path), "--out", str(tmp_path / "out"), "--iterations", "8", "--holdout", "3"]
+    assert main(["run", str(tmp_path / "dump"), "--", *argv, "--intrinsics", "10,10,5,5"]) == 0
+    report = json.loads((tmp_path / "out" / "reconstruction.json").read_text())
+    assert len(calls) == len(report["test_frames"])  # one render per held-out view
+    assert evaluate.evaluate_view is scored and getattr(evaluate, RENDER) is counting

@@ -7,7 +7,9 @@ reports what the mean absolute depth error is made of: its median and tail, the 
 depth-edge pixels (sensor depth ranging more than ``EDGE_RANGE`` in a 5x5 window) and what
 they contribute, the error by distance, and whether a whole-image shift of the render (a
 residual pose or registration error) would lower the depth error or raise the PSNR (both
-over the image less a ``SHIFT``-pixel border).
+over the image less a ``SHIFT``-pixel border). ``run`` also saves the nearest training frames'
+depth warped into each held-out view (:mod:`benchmarks.neighbour_depth`), and ``summarise``
+sets the render against that trivial baseline on the pixels both have.
 
     python -m benchmarks.held_out_errors run DUMP -- CAPTURE --intrinsics 585,585,320,240 --out O
     python -m benchmarks.held_out_errors summarise DUMP --out benchmarks/results/F.json
@@ -18,12 +20,15 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
+
+from benchmarks import neighbour_depth
 
 EDGE_RANGE = 0.05
 """Metres of sensor depth range in a 5x5 window that make a pixel a depth-edge pixel."""
@@ -34,6 +39,11 @@ TAILS = (0.05, 0.1, 0.2, 0.5)
 RENDER = "render_view"
 """The renderer :mod:`dcseg.reconstruct.evaluate` imports; ``run`` wraps it to keep renders."""
 
+OBSERVED = "_observed"
+"""The stage's step that sees the registered training and held-out frames at their final
+poses; ``run`` wraps it to warp the training frames' depth into each held-out one
+(:mod:`benchmarks.neighbour_depth`, saved as ``neighbour``)."""
+
 SHIFT = 4
 """Largest whole-image shift (pixels) of the render searched per view."""
 
@@ -42,11 +52,23 @@ def run(dump: Path, argv: list[str]) -> int:
     """``dcseg reconstruct ARGV`` with every held-out view's render saved to ``dump`` (the
     render :func:`dcseg.reconstruct.evaluate.evaluate_view` scores, kept as it passes)."""
     import dcseg.reconstruct.evaluate as evaluate
+    import dcseg.reconstruct.stage as stage
     from dcseg.cli import main
 
     dump.mkdir(parents=True, exist_ok=True)
     score, draw = evaluate.evaluate_view, getattr(evaluate, RENDER)
+    seen = getattr(stage, OBSERVED)
     last: list[Any] = []
+    warps: dict[str, NDArray[np.float32]] = {}
+
+    def warping(capture: Any, train: Any, test: Any, poses: Any) -> Any:
+        order = {f.name: i for i, f in enumerate(capture.frames)}
+        posed = [replace(f, c2w=(poses or {}).get(f.name, f.c2w)) for f in train]
+        for frame in test if capture.has_depth else ():
+            warps[frame.name] = neighbour_depth.warped(
+                frame, neighbour_depth.nearest(frame, posed, order)
+            )
+        return seen(capture, train, test, poses)
 
     def keeping(*args: Any, **kw: Any) -> Any:
         last[:] = [draw(*args, **kw)]
@@ -55,20 +77,23 @@ def run(dump: Path, argv: list[str]) -> int:
     def saving(gaussians: Any, view: Any, degree: int, backend: Any, **kw: Any) -> Any:
         metrics = score(gaussians, view, degree, backend, **kw)
         out = last[0]
+        extra: dict[str, Any] = {"neighbour": warps[view.name]} if view.name in warps else {}
         np.savez_compressed(
             dump / f"{view.name}.npz", depth=out.depth.cpu().numpy().squeeze(),
             truth=view.depth.cpu().numpy().squeeze(), render=out.values.cpu().numpy(),
-            image=view.rgb.cpu().numpy(),
+            image=view.rgb.cpu().numpy(), **extra,
         )  # fmt: skip
         return metrics
 
     evaluate.evaluate_view = saving  # type: ignore[assignment]
     setattr(evaluate, RENDER, keeping)
+    setattr(stage, OBSERVED, warping)
     try:
         return main(["reconstruct", *argv])
     finally:
         evaluate.evaluate_view = score  # type: ignore[assignment]
         setattr(evaluate, RENDER, draw)
+        setattr(stage, OBSERVED, seen)
 
 
 def _edges(truth: NDArray[Any]) -> NDArray[np.bool_]:
@@ -108,9 +133,12 @@ def _psnr(mse: float) -> float:
 def summarise(dump: Path) -> dict[str, Any]:
     """The anatomy of the held-out errors saved in ``dump`` (module docstring)."""
     errors, edges, depths, views = [], [], [], []
+    against: list[dict[str, float]] = []
     for path in sorted(dump.glob("*.npz")):
         saved = np.load(path)
         rendered, truth = saved["depth"], saved["truth"]
+        if "neighbour" in saved:
+            against.append(neighbour_depth.compared(rendered, truth, saved["neighbour"]))
         valid = truth > 0
         errors.append(np.abs(rendered - truth)[valid])
         edges.append(_edges(truth)[valid])
@@ -142,7 +170,7 @@ def summarise(dump: Path) -> dict[str, Any]:
         "depth_p90_mm": mm * float(np.percentile(error, 90)),
         "edge_share": float(edge.mean()),
         "edge_mae_mm": mm * float(error[edge].mean()) if edge.any() else None,
-        "off_edge_mae_mm": mm * float(error[~edge].mean()),
+        "off_edge_mae_mm": mm * float(error[~edge].mean()) if (~edge).any() else None,
         "edge_contribution_mm": mm * float((error * edge).mean()),
         "tails": {
             f">{t} m": {
@@ -156,7 +184,25 @@ def summarise(dump: Path) -> dict[str, Any]:
         "mean_view_depth_mae_mm": float(np.mean([v["depth_mae_mm"] for v in views])),
         "mean_psnr": float(np.mean([v["psnr"] for v in views])),
         "mean_shifted_psnr": float(np.mean([v["shifted_psnr"] for v in views])),
+        "neighbour_depth": _against(against),
         "per_view": views,
+    }
+
+
+def _against(sums: list[dict[str, float]]) -> dict[str, float] | None:
+    """The render against the nearest training frames' warped depth, on the pixels both have
+    (None when the dump has no warps)."""
+    total = {key: sum(s[key] for s in sums) for key in sums[0]} if sums else None
+    if total is None or total["pixels"] == 0:
+        return None
+    return {
+        "share": total["pixels"] / total["valid"],
+        "warp_mae_mm": 1e3 * total["warp_abs"] / total["pixels"],
+        "render_mae_mm": 1e3 * total["render_abs"] / total["pixels"],
+        "render_tail_share": total["render_tail"] / total["pixels"],
+        "tail_where_warp_agrees": (
+            total["tail_warp_agrees"] / total["render_tail"] if total["render_tail"] else 0.0
+        ),
     }
 
 

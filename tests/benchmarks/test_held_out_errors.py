@@ -60,8 +60,10 @@ def test_run_saves_every_held_out_view(tmp_path: Path, monkeypatch: pytest.Monke
     report = json.loads((out / "reconstruction.json").read_text())
     assert sorted(p.stem for p in dump.glob("*.npz")) == report["test_frames"]
     saved = np.load(dump / f"{report['test_frames'][0]}.npz")
-    assert saved["depth"].shape == saved["truth"].shape == (18, 24)
+    assert saved["depth"].shape == saved["truth"].shape == saved["neighbour"].shape == (18, 24)
     assert saved["render"].shape == saved["image"].shape == (18, 24, 3)
+    against = summarise(dump)["neighbour_depth"]
+    assert against is not None and 0 < against["share"] <= 1
 
 
 def test_run_saves_the_scored_render_and_restores_the_evaluation(

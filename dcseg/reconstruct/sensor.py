@@ -215,6 +215,16 @@ def _bilinear(
     return out
 
 
+def quantisation_line(noise: dict[str, Any]) -> str:
+    """How the depth is quantised, for the log: in disparity (steps ``c z^2``), in depth, or
+    neither."""
+    c = noise.get("disparity_step") or 0.0
+    if c > 0:
+        return f"in disparity (steps {c * 1000:.1f} mm at 1 m, {c * 6250:.1f} mm at 2.5 m)"
+    step = noise["quantisation_step"]
+    return f"step {step * 1000:.3f} mm" if step > 0 else "none (continuous depth)"
+
+
 def log_report(report: dict[str, Any]) -> None:
     """One log line per detected effect of :func:`sensor_report`."""
     if not report:
@@ -223,8 +233,8 @@ def log_report(report: dict[str, Any]) -> None:
     noise, flying = depth["noise"], depth["flying_pixels"]
     a = noise["a_at_1m"]
     log.info(
-        "depth: quantisation step %.3f mm, noise at 1 m %s (sigma = a z^2), %.1f %% missing",
-        noise["quantisation_step"] * 1000,
+        "depth: quantisation %s, noise at 1 m %s (sigma = a z^2), %.1f %% missing",
+        quantisation_line(noise),
         "unmeasured" if a is None else f"{a * 1000:.2f} mm",
         100 * (depth["missing_fraction"] or 0.0),
     )

@@ -8,6 +8,8 @@ from numpy.typing import NDArray
 
 from dcseg.reconstruct.depth_noise import (
     NEGLIGIBLE,
+    disparity_step,
+    lattice_step,
     noise_model,
     plane_residuals,
     quantisation_step,
@@ -47,6 +49,41 @@ def sensor(
 def test_the_quantisation_step_is_read_from_the_values(step: float, expected: float) -> None:
     found = quantisation_step(sensor(room(), 0.002, step))
     assert found == pytest.approx(expected, rel=0.01, abs=1e-9)
+
+
+def kinect(depth: NDArray[np.float64], c: float, a: float, seed: int = 0) -> NDArray[np.float32]:
+    """``depth`` as a disparity sensor writes it: noise ``a z^2``, inverse depth rounded to
+    multiples of ``c`` from an offset (the sensor's own), then the depth to millimetres."""
+    noisy = sensor(depth, a, 0.0, seed=seed).astype(np.float64)
+    valid = noisy > 0
+    offset = 0.123 * c
+    inverse = np.round((1.0 / np.where(valid, noisy, 1.0) - offset) / c) * c + offset
+    out = np.round(1000.0 / inverse) / 1000.0
+    return np.where(valid, out, 0.0).astype(np.float32)
+
+
+@pytest.mark.parametrize("c", [0.0029, 0.0045])
+def test_a_disparity_lattice_under_millimetre_rounding_is_found(c: float) -> None:
+    depth = kinect(room(), c, 0.0015)
+    assert disparity_step(depth) == pytest.approx(c, rel=0.002)
+    assert quantisation_step(depth) == 0.0  # millimetres, but not every one of them: no lattice
+    model = noise_model([kinect(room(), c, 0.0015, seed=s) for s in range(2)])
+    assert model.disparity_step == pytest.approx(c, rel=0.002)
+    assert model.as_dict()["disparity_step"] == model.disparity_step
+
+
+@pytest.mark.parametrize("step", [0.001, 1 / 6553.5, 0.0])
+def test_depth_on_a_depth_lattice_or_continuous_has_no_disparity_lattice(step: float) -> None:
+    depth = sensor(room(), 0.002, step)
+    assert disparity_step(depth) == 0.0
+    assert noise_model([depth]).disparity_step == 0.0
+
+
+def test_a_lattice_step_is_refined_across_a_range_the_image_does_not_show() -> None:
+    c = 0.003
+    levels = np.concatenate([np.arange(10) * c, (np.arange(10) + 40) * c]) + 0.2
+    blurred = levels + np.random.default_rng(0).uniform(-0.04, 0.04, levels.size) * c
+    assert lattice_step(np.sort(blurred)) == pytest.approx(c, rel=0.002)
 
 
 @pytest.mark.parametrize("a", [0.0015, 0.003, 0.006])

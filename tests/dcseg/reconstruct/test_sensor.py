@@ -8,9 +8,9 @@ import pytest
 from numpy.typing import NDArray
 
 from dcseg.reconstruct.pose_check import TILT_THRESHOLD
-from dcseg.reconstruct.sensor import depth_agreement, exposure, sensor_report
+from dcseg.reconstruct.sensor import depth_agreement, exposure, quantisation_line, sensor_report
 from dcseg.types import Frame, Intrinsics
-from tests.dcseg.reconstruct.test_depth_noise import room, sensor
+from tests.dcseg.reconstruct.test_depth_noise import kinect, room, sensor
 
 K = Intrinsics(fx=200.0, fy=200.0, cx=159.5, cy=119.5, width=320, height=240)
 
@@ -34,6 +34,8 @@ def test_the_report_names_the_depth_sensor_effects() -> None:
     depth = report["depth"]
     assert depth["noise"]["quantisation_step"] == pytest.approx(0.001, rel=0.01)
     assert depth["noise"]["units_per_metre"] == pytest.approx(1000.0, rel=0.01)  # millimetres
+    assert depth["noise"]["disparity_step"] == 0.0
+    assert quantisation_line(depth["noise"]) == "step 1.000 mm"
     assert depth["noise"]["a_at_1m"] == pytest.approx(0.003, rel=0.3)
     hole = (room() == 0).mean()
     assert depth["missing_fraction"] == pytest.approx(hole, rel=1e-6)
@@ -103,3 +105,12 @@ def test_a_rotation_hidden_in_heavy_noise_shows_as_tilt() -> None:
     assert wrong is not None and wrong["ratio"] < 0.8
     assert wrong["tilt_deg"] == pytest.approx(0.4, rel=0.2)  # first order: 0.34
     assert wrong["tilt_deg"] > TILT_THRESHOLD > exact["tilt_deg"]
+
+
+def test_a_disparity_sensor_is_reported_and_logged_as_one() -> None:
+    frames = [frame(kinect(room(), 0.0029, 0.0015, seed=s)) for s in range(3)]
+    noise = sensor_report(frames, drop_flying=True, median_window=5)["depth"]["noise"]
+    assert noise["disparity_step"] == pytest.approx(0.0029, rel=0.002)
+    assert noise["quantisation_step"] == 0.0 and noise["units_per_metre"] is None
+    assert quantisation_line(noise) == "in disparity (steps 2.9 mm at 1 m, 18.1 mm at 2.5 m)"
+    assert quantisation_line({"quantisation_step": 0.0, "disparity_step": 0.0}).startswith("none")

@@ -9,7 +9,8 @@ they contribute, the error by distance, and whether a whole-image shift of the r
 residual pose or registration error) would lower the depth error or raise the PSNR (both
 over the image less a ``SHIFT``-pixel border). ``run`` also saves the nearest training frames'
 depth warped into each held-out view (:mod:`benchmarks.neighbour_depth`), and ``summarise``
-sets the render against that trivial baseline on the pixels both have.
+sets the render against that trivial baseline on the pixels both have, and against single
+training frames ever further away (``one_training_frame_at_gap``).
 
     python -m benchmarks.held_out_errors run DUMP -- CAPTURE --intrinsics 585,585,320,240 --out O
     python -m benchmarks.held_out_errors summarise DUMP --out benchmarks/results/F.json
@@ -68,6 +69,10 @@ def run(dump: Path, argv: list[str]) -> int:
             warps[frame.name] = neighbour_depth.warped(
                 frame, neighbour_depth.nearest(frame, posed, order)
             )
+            for gap in neighbour_depth.GAPS:
+                source = neighbour_depth.at_gap(frame, posed, order, gap)
+                if source is not None:
+                    warps[f"{frame.name}/gap{gap}"] = neighbour_depth.projected(frame, source)
         return seen(capture, train, test, poses)
 
     def keeping(*args: Any, **kw: Any) -> Any:
@@ -78,6 +83,9 @@ def run(dump: Path, argv: list[str]) -> int:
         metrics = score(gaussians, view, degree, backend, **kw)
         out = last[0]
         extra: dict[str, Any] = {"neighbour": warps[view.name]} if view.name in warps else {}
+        for gap in neighbour_depth.GAPS:
+            if f"{view.name}/gap{gap}" in warps:
+                extra[f"gap{gap}"] = warps[f"{view.name}/gap{gap}"]
         np.savez_compressed(
             dump / f"{view.name}.npz", depth=out.depth.cpu().numpy().squeeze(),
             truth=view.depth.cpu().numpy().squeeze(), render=out.values.cpu().numpy(),
@@ -134,11 +142,17 @@ def summarise(dump: Path) -> dict[str, Any]:
     """The anatomy of the held-out errors saved in ``dump`` (module docstring)."""
     errors, edges, depths, views = [], [], [], []
     against: list[dict[str, float]] = []
+    gaps: dict[int, list[tuple[NDArray[np.float32], NDArray[np.float32]]]] = {}
     for path in sorted(dump.glob("*.npz")):
         saved = np.load(path)
         rendered, truth = saved["depth"], saved["truth"]
         if "neighbour" in saved:
             against.append(neighbour_depth.compared(rendered, truth, saved["neighbour"]))
+        for gap in neighbour_depth.GAPS:
+            if f"gap{gap}" in saved:
+                gaps.setdefault(gap, []).append(
+                    neighbour_depth.by_gap(rendered, truth, saved[f"gap{gap}"])
+                )
         valid = truth > 0
         errors.append(np.abs(rendered - truth)[valid])
         edges.append(_edges(truth)[valid])
@@ -185,6 +199,12 @@ def summarise(dump: Path) -> dict[str, Any]:
         "mean_psnr": float(np.mean([v["psnr"] for v in views])),
         "mean_shifted_psnr": float(np.mean([v["shifted_psnr"] for v in views])),
         "neighbour_depth": _against(against),
+        "one_training_frame_at_gap": {
+            str(gap): neighbour_depth.gap_summary(
+                np.concatenate([w for w, _ in pairs]), np.concatenate([r for _, r in pairs])
+            )
+            for gap, pairs in sorted(gaps.items())
+        },
         "per_view": views,
     }
 

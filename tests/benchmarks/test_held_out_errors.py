@@ -62,8 +62,9 @@ def test_run_saves_every_held_out_view(tmp_path: Path, monkeypatch: pytest.Monke
     saved = np.load(dump / f"{report['test_frames'][0]}.npz")
     assert saved["depth"].shape == saved["truth"].shape == saved["neighbour"].shape == (18, 24)
     assert saved["render"].shape == saved["image"].shape == (18, 24, 3)
-    against = summarise(dump)["neighbour_depth"]
-    assert against is not None and 0 < against["share"] <= 1
+    summary = summarise(dump)
+    assert summary["neighbour_depth"] is not None and 0 < summary["neighbour_depth"]["share"] <= 1
+    assert saved["gap1"].shape == (18, 24) and summary["one_training_frame_at_gap"]["1"]["pixels"]
 
 
 def test_run_saves_the_scored_render_and_restores_the_evaluation(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.neighbour_depth import compared, nearest, warped
+from benchmarks.neighbour_depth import at_gap, by_gap, compared, gap_summary, nearest, warped
 from dcseg.types import Frame, Intrinsics
 
 K = Intrinsics(fx=40.0, fy=40.0, cx=15.5, cy=11.5, width=32, height=24)
@@ -54,3 +54,28 @@ def test_compared_counts_the_render_tail_the_warp_gets_right() -> None:
     assert sums["render_abs"] == pytest.approx(0.5)
     assert sums["warp_abs"] == pytest.approx(0.21, abs=1e-6)
     assert sums["render_tail"] == 1 and sums["tail_warp_agrees"] == 1
+
+
+def test_at_gap_counts_training_frames_before_the_held_out_one_else_after() -> None:
+    flat = np.ones((K.height, K.width), dtype=np.float32)
+    names = ["f0", "f1", "f3", "f4", "f5"]
+    train = [_frame(n, 0.0, flat) for n in reversed(names)]  # any order in
+    order = {n: int(n[1]) for n in [*names, "f2"]}
+    held_out = _frame("f2", 0.0, flat)
+    assert [getattr(at_gap(held_out, train, order, g), "name", None) for g in (1, 2, 3, 4)] == [
+        "f1", "f0", "f5", None,
+    ]  # fmt: skip
+
+
+def test_gap_summary_splits_core_and_tail_for_warp_and_render() -> None:
+    truth = np.full((1, 4), 2.0, dtype=np.float32)
+    warp = np.array([[2.01, 2.02, 0.0, 2.5]], dtype=np.float32)  # pixel 2: nothing warped
+    render = np.array([[2.0, 2.04, 9.0, 2.0]], dtype=np.float32)
+    summary = gap_summary(*by_gap(render, truth, warp))
+    assert summary["pixels"] == 3
+    assert summary["warp_mae_mm"] == pytest.approx(1e3 * 0.53 / 3, rel=1e-4)
+    assert summary["warp_core_mae_mm"] == pytest.approx(15.0, rel=1e-3)
+    assert summary["warp_tail_share"] == pytest.approx(1 / 3)
+    assert summary["render_mae_mm"] == pytest.approx(40 / 3, rel=1e-3)
+    assert summary["render_median_mm"] == pytest.approx(0.0, abs=1e-3)
+    assert summary["render_tail_share"] == 0.0

@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from dcseg.reconstruct.init import backproject_points
+from dcseg.reconstruct.init import backproject_points, project_points
 from dcseg.types import Frame
 
 NEIGHBOURS = 2
@@ -54,15 +54,7 @@ def at_gap(
 def projected(frame: Frame, source: Frame) -> NDArray[np.float32]:
     """``[H, W]`` depth in ``frame`` of ``source``'s depth points (nearest per pixel, 0 = none)."""
     world, _ = backproject_points(source)
-    w2c = np.linalg.inv(frame.c2w)
-    cam = world @ w2c[:3, :3].T + w2c[:3, 3]
-    z = cam[:, 2]
-    front = z > 1e-3
-    k = frame.intrinsics
-    u = np.rint(k.fx * cam[front, 0] / z[front] + k.cx).astype(np.int64)
-    v = np.rint(k.fy * cam[front, 1] / z[front] + k.cy).astype(np.int64)
-    z = z[front]
-    inside = (u >= 0) & (u < frame.width) & (v >= 0) & (v < frame.height)
+    u, v, z, inside = project_points(frame, world)
     u, v, z = u[inside], v[inside], z[inside]
     far_first = np.argsort(-z)
     out = np.zeros((frame.height, frame.width), dtype=np.float32)

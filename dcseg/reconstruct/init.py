@@ -55,6 +55,25 @@ def backproject_points(
     return world, (u, v)
 
 
+def project_points(
+    frame: Frame, world: Points
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
+    """The inverse of :func:`backproject_points`: ``(x, y, z, inside)``, the nearest pixel of
+    ``frame`` each ``[M, 3]`` ``world`` point falls on, its depth in ``frame``'s camera, and
+    whether it lies in front of the camera and inside the image (``x``, ``y`` mean nothing
+    elsewhere)."""
+    w2c = np.linalg.inv(frame.c2w)
+    local = world @ w2c[:3, :3].T + w2c[:3, 3]
+    z = local[:, 2]
+    ahead = z > 1e-6
+    k = frame.intrinsics
+    safe = np.where(ahead, z, 1.0)
+    x = np.rint(local[:, 0] / safe * k.fx + k.cx).astype(np.int64)
+    y = np.rint(local[:, 1] / safe * k.fy + k.cy).astype(np.int64)
+    inside = ahead & (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+    return x, y, z, inside
+
+
 def scene_extent(frames: Sequence[Frame], stride: int = 4) -> float:
     """A scene radius (metres) that scales learning rates, voxel size and pruning.
 

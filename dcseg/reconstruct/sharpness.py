@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from dcseg.reconstruct.init import backproject_points
+from dcseg.reconstruct.init import backproject_points, project_points
 from dcseg.types import Frame
 
 log = logging.getLogger(__name__)
@@ -204,15 +204,7 @@ def covered(frames: Sequence[Frame], index: int, blurred: NDArray[np.bool_]) -> 
 def sees(frame: Frame, world: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Which ``world`` points ``frame`` sees: in front, inside the image, and within 10 % of
     its depth at the nearest pixel (farther means occluded; no depth there counts as seen)."""
-    w2c = np.linalg.inv(frame.c2w)
-    local = world @ w2c[:3, :3].T + w2c[:3, 3]
-    z = local[:, 2]
-    ahead = z > 1e-6
-    k = frame.intrinsics
-    safe = np.where(ahead, z, 1.0)
-    x = np.rint(local[:, 0] / safe * k.fx + k.cx).astype(np.int64)
-    y = np.rint(local[:, 1] / safe * k.fy + k.cy).astype(np.int64)
-    inside = ahead & (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+    x, y, z, inside = project_points(frame, world)
     observed = np.zeros(len(z))
     observed[inside] = frame.depth[y[inside], x[inside]]
     unoccluded = (observed <= 0) | (z < 1.1 * observed)

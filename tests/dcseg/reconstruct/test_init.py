@@ -14,7 +14,9 @@ from dcseg.reconstruct.depth_filter import DepthFilter
 from dcseg.reconstruct.init import (
     auto_voxel_size,
     backproject,
+    backproject_points,
     point_cloud,
+    project_points,
     scene_extent,
     voxel_downsample,
     voxel_keys,
@@ -32,6 +34,17 @@ def test_backprojected_depth_lies_on_the_surface(capture) -> None:
     assert len(points) == int((capture.frames[0].depth > 0).sum())
     assert float(surface_distance(points).max()) < 1e-4
     assert colours.min() >= 0.0 and colours.max() <= 1.0
+
+
+def test_projected_points_land_on_the_pixels_they_came_from(capture) -> None:
+    frame = capture.frames[1]
+    world, (u, v) = backproject_points(frame)
+    x, y, z, inside = project_points(frame, world)
+    assert inside.all() and (x == u).all() and (y == v).all()
+    assert np.allclose(z, frame.depth[v, u], atol=1e-5)
+    behind = 2.0 * frame.c2w[:3, 3] - world[:1]  # mirrored through the camera centre
+    beside = world[:1] + 100.0 * frame.c2w[:3, 0]  # far off to the right
+    assert not project_points(frame, np.concatenate([behind, beside]))[3].any()
 
 
 def test_init_points_are_near_the_surface(capture) -> None:

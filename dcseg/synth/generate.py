@@ -50,6 +50,9 @@ GT_VOXEL = 0.02
 CAMERA_RADII = (2.1, 1.6)
 MAX_DEPTH_SHIFT = 16
 """Largest ``depth_shift_px`` component (pixels)."""
+MAX_DISPARITY_STEP = 0.02
+"""Coarsest disparity quantisation ``dcseg synth`` makes (1 / metres: 2 cm steps at 1 m, seven
+times Kinect v1's)."""
 
 # Independent random streams, so that changing one stage leaves the others' draws alone.
 _SCENE, _CAMERA, _AGNOSTIC, _SEMANTIC, _DEPTH, _PARTS, _FATES, _POSE, _EXPOSURE, _BLUR = range(10)
@@ -72,6 +75,8 @@ class SynthConfig:
             from view to view. Depth, masks and ground truth are never supersampled.
         depth_sigma: depth noise at 1 m (metres, grows with z squared) instead of the noise
             level's; None = the level's.
+        disparity_step: depth quantised in disparity (:func:`dcseg.synth.noise.
+            disparity_quantised`; 1 / metres, Kinect v1: 0.0029) after the noise; 0 = not.
         pose_error_deg, pose_error_m: the poses written into the capture are off by a
             rotation of this many degrees (standard deviation of the angle, random axis) and
             a translation of this standard deviation per axis; images, depth and ground truth
@@ -103,6 +108,7 @@ class SynthConfig:
     noise: str = "default"
     supersample: int = 2
     depth_sigma: float | None = None
+    disparity_step: float = 0.0
     pose_error_deg: float = 0.0
     pose_error_m: float = 0.0
     motion_blur_px: float = 0.0
@@ -124,6 +130,11 @@ class SynthConfig:
             raise ValueError(f"supersample must be between 1 and 4, got {self.supersample}")
         if self.depth_sigma is not None and not 0.0 <= self.depth_sigma <= 0.1:
             raise ValueError(f"depth_sigma must be between 0 and 0.1, got {self.depth_sigma}")
+        if not 0.0 <= self.disparity_step <= MAX_DISPARITY_STEP:
+            raise ValueError(
+                f"disparity_step must be between 0 and {MAX_DISPARITY_STEP:g} per metre, "
+                f"got {self.disparity_step}"
+            )
         if not 0.0 <= self.pose_error_deg <= 10.0:
             raise ValueError(f"pose_error_deg must be between 0 and 10, got {self.pose_error_deg}")
         if not 0.0 <= self.pose_error_m <= 0.5:
@@ -157,8 +168,8 @@ class SynthConfig:
         return "realistic" if NOISE_LEVELS[self.noise].failures is not None else None
 
     def level(self) -> NoiseLevel:
-        """The noise level, with ``depth_sigma`` when it is set."""
-        level = NOISE_LEVELS[self.noise]
+        """The noise level, with ``depth_sigma`` when it is set and ``disparity_step``."""
+        level = replace(NOISE_LEVELS[self.noise], disparity_step=self.disparity_step)
         return level if self.depth_sigma is None else replace(level, depth_sigma=self.depth_sigma)
 
     def vocabulary(self) -> Vocabulary:

@@ -227,13 +227,16 @@ def noise_model(
     step: float | None = None,
     radius: int = RADIUS,
     stride: int = STRIDE,
+    disparity: bool = True,
 ) -> NoiseModel:
     """The noise model pooled over ``depths`` (``[H, W]`` metres, 0 = invalid) with windows of
     ``radius`` and ``stride`` (then :data:`FALLBACKS`); ``step`` the quantisation step if known
-    (else the median of :func:`quantisation_step` over them)."""
+    (else the median of :func:`quantisation_step` over them); ``disparity``: read the
+    disparity lattice too (else ``disparity_step`` is 0.0: unread)."""
     if step is None:
         step = float(np.median([quantisation_step(d) for d in depths])) if depths else 0.0
-    disparity = float(np.median([disparity_step(d) for d in depths])) if depths else 0.0
+    read = disparity and bool(depths)
+    c = float(np.median([disparity_step(d) for d in depths])) if read else 0.0
     maps = [np.ascontiguousarray(d, np.float32) for d in depths]
     z, sd, dof = np.zeros(0), np.zeros(0), 1
     for r, s in ((radius, stride), *FALLBACKS):
@@ -244,11 +247,11 @@ def noise_model(
         if len(z) >= MIN_WINDOWS:
             break
     if len(z) < MIN_WINDOWS:
-        return NoiseModel(None, step, (), disparity)
+        return NoiseModel(None, step, (), c)
     # the residual variance net of the quantisation's (q^2 / 12 in depth, / z^4 in 1 / depth)
     net = sd * sd - step * step / (12.0 * z**4)
     a = _quantile_sd(net, dof)
-    return NoiseModel(a if a >= NEGLIGIBLE else 0.0, step, _bins(z, net, dof), disparity)
+    return NoiseModel(a if a >= NEGLIGIBLE else 0.0, step, _bins(z, net, dof), c)
 
 
 def _quantile_sd(net: NDArray[np.float64], dof: int) -> float:
@@ -275,6 +278,8 @@ def _bins(
 
 
 def view_noise(depth: NDArray[Any]) -> float:
-    """One view's noise at 1 m (:func:`noise_model` of that view alone; 0.0 when unmeasured)."""
-    a = noise_model([depth]).a
+    """One view's noise at 1 m (:func:`noise_model` of that view alone; 0.0 when unmeasured;
+    the disparity lattice, which ``a`` does not depend on, is not read: the depth filter calls
+    this for every training view)."""
+    a = noise_model([depth], disparity=False).a
     return 0.0 if a is None else a

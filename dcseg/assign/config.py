@@ -135,6 +135,9 @@ class AssignConfig:
             default 3, 5, clean 3 -0.3 / -0.2 / -0.3 (worst -0.8). Chosen on detector 8 (1.0
             and 2.0 cm, 5 cm radius scored lower); the enclosure, rise and flat-cluster checks
             of :mod:`dcseg.assign.rings` after heavy 4, 5 and lowres 8 lost objects' parts.
+            Since 2026-12-07 only bodies of the moved cluster's own class enclose beyond
+            ``ring_radius`` (other objects 10-40 cm round a ring kept it): detector 5, 7, 8, 9,
+            10 +0.8 / +0.7 / F1 +1.6; the other layouts -0.1 / -0.2 / -0.4 (benchmarks README).
         ring_radius: ... the support's local plane is fitted to its Gaussians within this
             distance (metres) of the candidate.
         ring_min_cosine: ... smallest |cosine| between the candidate's disc normal and the

@@ -11,12 +11,12 @@ object rises out of it.
 (the support) when it lies in the support's local plane and its own disc lies flat in that
 plane; rounds grow the support outwards over the ring, a Gaussian moved before counting
 where it meets the plane it joined (so rounds cannot climb the side of a low object, a block
-lying flat, a centimetre a round). Then the moves are judged
-(:func:`_judge_moves`): what the object's body surrounds (a tray's bottom within its rim)
-goes back to it; a cluster whose moved part sits above the support's plane rather than about
-it (a block lying flat) keeps it all; and so does a cluster that would lose more than
-``AssignConfig.ring_max_share`` of its Gaussians with no body of its class beside it (a
-poster on a wall, a rug).
+lying flat, a centimetre a round). Then the moves are judged (:func:`_judge_moves`): what
+the object's body surrounds (a tray's bottom within its rim; bodies of other classes count
+only close by) goes back to it; a cluster whose moved part sits above the support's plane
+rather than about it (a block lying flat) keeps it all; and so does a cluster that would lose
+more than ``AssignConfig.ring_max_share`` of its Gaussians with no body of its class beside
+it (a poster on a wall, a rug).
 """
 
 from __future__ import annotations
@@ -56,8 +56,9 @@ RING_SIZE_RATIO = 2.0
 """A support cluster holds at least this many times the object cluster's Gaussians."""
 
 RING_ENCLOSE_RADIUS = 0.4
-"""Distance (metres) within which an object's body must surround a moved Gaussian to keep
-it (:func:`_judge_moves`): a large tray's width, so that its far rim counts."""
+"""Distance (metres) within which a body of its cluster's class must surround a moved
+Gaussian to keep it (:func:`_judge_moves`): a large tray's width, so that its far rim counts.
+Bodies of other classes count within ``AssignConfig.ring_radius`` only."""
 
 RING_BODY_POINTS = 4096
 """Body Gaussians round one cluster's moves that the sector test looks at (:func:`_thinned`)."""
@@ -181,17 +182,20 @@ def _judge_moves(
 
     Heights are taken from the plane of a cluster's moved Gaussians, upwards on the side
     where most of its class's other Gaussians within :data:`RING_ENCLOSE_RADIUS` lie (a flat
-    piece of a ball has the ball above it). The objects round a moved Gaussian are the
+    piece of a ball has the ball above it). The bodies round a moved Gaussian are the
     Gaussians of object clusters (labelled, not stuff) that did not move and stand more than
     ``ring_plane_tol`` above that plane, among the Gaussians (found with ``tree``) within
     :data:`RING_ENCLOSE_RADIUS` of the cluster's moved ones; seen along the normal, they
-    enclose it when within :data:`RING_ENCLOSE_RADIUS` they leave no empty sector wider
-    than :data:`RING_MAX_GAP`.
-    A ring lies round an object's base, the object on one side; a tray's bottom lies within
-    its rim and a ball's underside under the ball, which hold them. A flat cluster with
-    Gaussians of its class more than ``2 ring_plane_tol`` off the plane beside it is a piece
-    of the support that such an object's masks took (and that voted its class); without
-    them it is a flat object of its own (a poster, a rug, a domino lying flat)."""
+    enclose it when they leave no empty sector wider than :data:`RING_MAX_GAP`: bodies of
+    the cluster's own class within :data:`RING_ENCLOSE_RADIUS`, or any within
+    ``ring_radius``. A ring lies round an object's base, the object on one side; a tray's
+    bottom lies within its rim and a ball's underside under the ball, which hold them. Other
+    objects standing 10-40 cm round a ring on a cluttered table do not make it a tray's
+    bottom (they did before 2026-12-07: detector layout 5 kept 214 ring Gaussians so). A
+    flat cluster with Gaussians of its class more than ``2 ring_plane_tol`` off the plane
+    beside it is a piece of the support that such an object's masks took (and that voted its
+    class); without them it is a flat object of its own (a poster, a rug, a domino lying
+    flat)."""
     back = np.zeros(len(labels), dtype=bool)
     beside = np.zeros(len(classes), dtype=bool)
     member = labels >= 0
@@ -212,10 +216,12 @@ def _judge_moves(
         height = points @ normal - float(np.median(at @ normal))
         if _below(centre, points[same], height[same]):
             normal, height = -normal, -height  # the object's body lies on the other side
-        bodies = _thinned(points[solid[near] & (height > cfg.ring_plane_tol)])
-        if len(bodies):
-            axes = _plane_axes(normal)
-            back[moved] = _enclosed(at @ axes, bodies @ axes)
+        raised = solid[near] & (height > cfg.ring_plane_tol)
+        axes = _plane_axes(normal)
+        flat = at @ axes
+        back[moved] = _enclosed(flat, _thinned(points[raised & same]) @ axes) | _enclosed(
+            flat, _thinned(points[raised]) @ axes, cfg.ring_radius
+        )
         own = points[same & (np.abs(height) > 2.0 * cfg.ring_plane_tol)]
         if len(own):
             gap, _ = cKDTree(own).query(at, distance_upper_bound=cfg.ring_radius)
@@ -250,11 +256,15 @@ def _below(
     return bool(near.any()) and float(np.median(heights[near])) < 0.0
 
 
-def _enclosed(points: NDArray[np.float64], body: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """``[M]`` which 2D ``points`` the 2D ``body`` surrounds within
-    :data:`RING_ENCLOSE_RADIUS`, leaving no empty sector wider than :data:`RING_MAX_GAP`."""
+def _enclosed(
+    points: NDArray[np.float64], body: NDArray[np.float64], radius: float = RING_ENCLOSE_RADIUS
+) -> NDArray[np.bool_]:
+    """``[M]`` which 2D ``points`` the 2D ``body`` surrounds within ``radius``, leaving no
+    empty sector wider than :data:`RING_MAX_GAP`."""
     out = np.zeros(len(points), dtype=bool)
-    found = cKDTree(body).query_ball_point(points, RING_ENCLOSE_RADIUS)
+    if not len(body):
+        return out
+    found = cKDTree(body).query_ball_point(points, radius)
     for i, near in enumerate(found):
         if len(near) < 3:
             continue

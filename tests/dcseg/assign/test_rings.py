@@ -72,6 +72,23 @@ def test_the_ring_round_a_mug_goes_back_to_the_table() -> None:
     assert (out[~band] == labels[~band]).all()  # the mug's side and the table stay
 
 
+def test_other_objects_round_a_ring_do_not_make_it_a_tray_bottom() -> None:
+    """Eight objects of another class stand 25 cm round the mug (a cluttered table): together
+    they surround its ring, but they are no body of the mug's, so the ring still goes back."""
+    means, normals, labels, band = _mug_scene()
+    parts = [_cylinder(0.5 + 0.25 * np.cos(a), 0.5 + 0.25 * np.sin(a), 0.03, 0.1)
+             for a in np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)]  # fmt: skip
+    others = np.concatenate([p for p, _ in parts])
+    means = np.concatenate([means, others])
+    normals = np.concatenate([normals, *[n for _, n in parts]])
+    labels = np.r_[labels, np.repeat(np.arange(2, 10), [len(p) for p, _ in parts])]
+    classes = np.array([TABLE, OBJECT, *[TRAY] * 8])
+    out, moved = release_rings(means, normals, labels, classes, [], CFG)
+    assert moved == band.sum() > 0
+    assert (out[: len(band)][band] == 0).all()
+    assert (out[len(band) :] == labels[len(band) :]).all()  # the objects keep theirs
+
+
 def test_candidates_looked_up_in_blocks_give_the_same_moves(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -137,7 +137,7 @@ class AssignConfig:
             of :mod:`dcseg.assign.rings` after heavy 4, 5 and lowres 8 lost objects' parts.
             Since 2026-12-07 only bodies of the moved cluster's own class enclose beyond
             ``ring_radius`` (other objects 10-40 cm round a ring kept it): detector 5, 7, 8, 9,
-            10 +0.8 / +0.7 / F1 +1.6; the other layouts -0.1 / -0.2 / -0.4 (benchmarks README).
+            10 +0.8 / +0.7 / F1 +1.6; the other 10 layouts -0.1 / -0.1 / -0.3 (benchmarks README).
         ring_radius: ... the support's local plane is fitted to its Gaussians within this
             distance (metres) of the candidate.
         ring_min_cosine: ... smallest |cosine| between the candidate's disc normal and the

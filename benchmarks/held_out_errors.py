@@ -10,7 +10,8 @@ residual pose or registration error) would lower the depth error or raise the PS
 over the image less a ``SHIFT``-pixel border). ``run`` also saves the nearest training frames'
 depth warped into each held-out view (:mod:`benchmarks.neighbour_depth`), and ``summarise``
 sets the render against that trivial baseline on the pixels both have, and against single
-training frames ever further away (``one_training_frame_at_gap``).
+training frames ever further away (``one_training_frame_at_gap``), and counts how far the
+render's silhouettes spill past the sensor's (:mod:`benchmarks.silhouettes`).
 
     python -m benchmarks.held_out_errors run DUMP -- CAPTURE --intrinsics 585,585,320,240 --out O
     python -m benchmarks.held_out_errors summarise DUMP --out benchmarks/results/F.json
@@ -29,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from benchmarks import neighbour_depth
+from benchmarks import neighbour_depth, silhouettes
 
 EDGE_RANGE = 0.05
 """Metres of sensor depth range in a 5x5 window that make a pixel a depth-edge pixel."""
@@ -143,9 +144,11 @@ def summarise(dump: Path) -> dict[str, Any]:
     errors, edges, depths, views = [], [], [], []
     against: list[dict[str, float]] = []
     gaps: dict[int, list[tuple[NDArray[np.float32], NDArray[np.float32]]]] = {}
+    spilled = np.zeros((len(silhouettes.DISTANCES), 4), dtype=np.int64)
     for path in sorted(dump.glob("*.npz")):
         saved = np.load(path)
         rendered, truth = saved["depth"], saved["truth"]
+        spilled += silhouettes.counts(rendered, truth, saved.get("neighbour"))
         if "neighbour" in saved:
             against.append(neighbour_depth.compared(rendered, truth, saved["neighbour"]))
         for gap in neighbour_depth.GAPS:
@@ -199,6 +202,7 @@ def summarise(dump: Path) -> dict[str, Any]:
         "mean_psnr": float(np.mean([v["psnr"] for v in views])),
         "mean_shifted_psnr": float(np.mean([v["shifted_psnr"] for v in views])),
         "neighbour_depth": _against(against),
+        "silhouettes": silhouettes.summary(spilled),
         "one_training_frame_at_gap": {
             str(gap): neighbour_depth.gap_summary(
                 np.concatenate([w for w, _ in pairs]), np.concatenate([r for _, r in pairs])

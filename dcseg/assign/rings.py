@@ -218,9 +218,9 @@ def _judge_moves(
             normal, height = -normal, -height  # the object's body lies on the other side
         raised = solid[near] & (height > cfg.ring_plane_tol)
         axes = _plane_axes(normal)
-        flat = at @ axes
-        back[moved] = _enclosed(flat, _thinned(points[raised & same]) @ axes) | _enclosed(
-            flat, _thinned(points[raised]) @ axes, cfg.ring_radius
+        seen = at @ axes  # the moved Gaussians seen along the normal
+        back[moved] = _enclosed(seen, _thinned(points[raised & same]) @ axes) | _enclosed(
+            seen, _thinned(points[raised]) @ axes, cfg.ring_radius
         )
         own = points[same & (np.abs(height) > 2.0 * cfg.ring_plane_tol)]
         if len(own):

@@ -24,6 +24,7 @@ from dcseg.errors import InputError, Problem
 from dcseg.inputs import RunInputs
 from dcseg.io.captures import CaptureListing, list_capture
 from dcseg.io.captures.common import iter_frames, select
+from dcseg.io.folders import frame_of
 from dcseg.io.ground_truth import read_ground_truth
 from dcseg.io.images import header_pixels, pixel_budget
 from dcseg.io.limits import LimitProblem
@@ -358,13 +359,15 @@ def _check_against_frames(
     size_of: Callable[[T], tuple[tuple[int, int], str]],
     frame_sizes: FrameSizes | None,
 ) -> list[Problem]:
-    """Masks must belong to listed frames and have the frame's aspect ratio (when the frame
+    """Masks must belong to listed frames (their stems may add a part name to the frame's:
+    :func:`~dcseg.io.folders.frame_of`) and have the frame's aspect ratio (when the frame
     could be read)."""
     if frame_sizes is None:
         return []
     out: list[Problem] = []
-    for name, item in sorted(per_frame.items()):
+    for stem, item in sorted(per_frame.items()):
         (width, height), source = size_of(item)
+        name = frame_of(stem, frame_sizes) or stem
         if name not in frame_sizes:
             out.append(Problem(source or name, f"mask for frame {name!r}, which the capture lacks"))
             continue

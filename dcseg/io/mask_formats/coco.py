@@ -110,8 +110,7 @@ def _listing(
     problems += _attach(layout.data["annotations"], images, shown)
     by_stem = {image.stem: image for image in images.values()}
     if frames is not None:
-        kept, extra = frames.pick(dict.fromkeys(by_stem, layout.index), layout.path, what)
-        by_stem = {stem: by_stem[stem] for stem in kept}
+        by_stem, extra = frames.pick(by_stem, layout.path, what)
         problems += extra
     return shown, by_stem, problems
 

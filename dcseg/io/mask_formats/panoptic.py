@@ -115,9 +115,7 @@ def _frames(
     else:
         listed, problems = _pair_frames(layout)
     if frames is not None:
-        paths = {stem: frame.png for stem, frame in listed.items()}
-        kept, extra = frames.pick(paths, layout.path, "panoptic masks")
-        listed = {stem: listed[stem] for stem in kept}
+        listed, extra = frames.pick(listed, layout.path, "panoptic masks")
         problems.extend(extra)
     return listed, problems
 

@@ -77,6 +77,23 @@ def test_synthetic_scene_passes(scene: Path, capsys: pytest.CaptureFixture[str])
     assert report.summary["ground_truth"]["labelled_points"] > 0
 
 
+def test_masks_named_with_a_part_after_the_frame_pass(copy: Path) -> None:
+    """``<frame>.segm.png`` and ``<frame>-label.png`` name their frames (the Amazon Picking
+    Challenge and YCB-Video write them so); a stem with another frame's name does not."""
+    stem = first_stem(copy)
+    agnostic, semantic = copy / "masks" / "agnostic", copy / "masks" / "semantic"
+    (agnostic / f"{stem}.json").rename(agnostic / f"{stem}.segm.json")
+    (semantic / f"{stem}.png").rename(semantic / f"{stem}-label.png")
+    report = validate_inputs(paths_of(copy))
+    assert report.ok, report.problems
+    assert report.summary["agnostic_masks"]["frames"] == 4
+    (agnostic / f"{stem}.segm.json").rename(agnostic / f"{stem}.segm2.json")
+    report = validate_inputs(paths_of(copy))
+    assert [p.reason for p in report.problems] == [
+        f"mask for frame '{stem}.segm2', which the capture lacks"
+    ]
+
+
 def test_json_report(scene: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main([*cli_args(scene), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)

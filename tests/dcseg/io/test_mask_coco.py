@@ -85,6 +85,16 @@ def test_json_file_given_directly_with_size_and_frames(tmp_path: Path) -> None:
     )
 
 
+def test_file_names_with_a_part_after_the_frame_name_are_the_frame_s(tmp_path: Path) -> None:
+    data = coco([{"id": 1, "image_id": 2, "segmentation": [SQUARE]}], n_images=3)
+    for image in data["images"]:
+        image["file_name"] = image["file_name"].replace(".jpg", ".segm.jpg")
+    index = write_json(tmp_path / "instances.json", data)
+    frames = frozenset({"frame_0000", "frame_0001", "frame_0002"})
+    masks = read_agnostic_masks(index, frames=FrameSelection(frozenset({"frame_0001"}), frames))
+    assert list(masks) == ["frame_0001"] and len(masks["frame_0001"]) == 1
+
+
 def test_image_without_annotations_has_no_masks(tmp_path: Path) -> None:
     write_json(tmp_path / "m" / "coco.json", coco([]))
     masks = read_agnostic_masks(tmp_path / "m")

@@ -213,3 +213,42 @@ def test_class_maps_are_read_for_the_selected_frames_only(tmp_path: Path):
     write_image(folder / "zzz.png", np.zeros((120, 160), np.uint8))
     with pytest.raises(InputError, match="class maps for frames the capture lacks: zzz"):
         read_semantic_maps(folder, Vocabulary(("wall",)), frames=selection)
+
+
+def test_mask_files_that_add_a_part_name_to_the_frame_are_that_frame_s(tmp_path: Path):
+    """``frame-000000.segm.png`` beside 7-Scenes' ``frame-000000.color.png`` (the Amazon
+    Picking Challenge data), ``000001-label.png`` (YCB-Video): read for those frames."""
+    agnostic, semantic = tmp_path / "agnostic", tmp_path / "semantic"
+    agnostic.mkdir()
+    semantic.mkdir()
+    _label_png(agnostic / "frame-000000.segm.png")
+    _label_png(agnostic / "frame-000001_mask.png")
+    write_image(semantic / "frame-000000-label.png", np.zeros((120, 160), np.uint8))
+    frames = frozenset({"frame-000000", "frame-000001"})
+    masks = read_agnostic_masks(agnostic, frames=FrameSelection(frames, frames))
+    assert sorted(masks) == ["frame-000000", "frame-000001"]
+    assert len(masks["frame-000000"]) > 0 and masks["frame-000000"].name == "frame-000000"
+    maps = read_semantic_maps(
+        semantic, Vocabulary(("wall",)), frames=FrameSelection(frames, frames)
+    )
+    assert list(maps) == ["frame-000000"] and maps["frame-000000"].name == "frame-000000"
+
+
+def test_two_files_of_one_frame_are_refused(tmp_path: Path):
+    folder = tmp_path / "agnostic"
+    folder.mkdir()
+    _label_png(folder / "000.png")
+    _label_png(folder / "000.segm.png")
+    selection = FrameSelection(frozenset({"000"}), frozenset({"000", "001"}))
+    with pytest.raises(InputError, match=r"frame '000' has several masks: 000, 000\.segm"):
+        read_agnostic_masks(folder, frames=selection)
+
+
+def test_a_numbered_stem_is_no_part_name(tmp_path: Path):
+    """``000-001`` is not frame ``000``'s: only an alphabetic last part is taken off."""
+    folder = tmp_path / "agnostic"
+    folder.mkdir()
+    _label_png(folder / "000-001.png")
+    selection = FrameSelection(frozenset({"000"}), frozenset({"000"}))
+    with pytest.raises(InputError, match="masks for frames the capture lacks: 000-001"):
+        read_agnostic_masks(folder, frames=selection)

@@ -198,9 +198,14 @@ def segment_scene(
             on_progress("assign", 1.0, f"{ring_moves} Gaussians of support rings given back")
     semantic_ids = label_map(clustering.labels, assignment.labels)
     footprints = as_numpy(g.log_scales.max(dim=1).values.exp(), np.float64)
+    background = None if total is None else total.unlabelled_share() > a.background_share
     instances, semantic_ids = build_objects(
-        means, radius, evidence, clustering, assignment, semantic_ids, a, stuff, footprints
-    )
+        means, radius, evidence, clustering, assignment, semantic_ids, a, stuff, footprints,
+        background,
+    )  # fmt: skip
+    left = 0 if background is None else int((background & (semantic_ids < 0)).sum())
+    if left:
+        on_progress("objects", 1.0, f"{left} Gaussians the class masks leave unlabelled stay so")
     on_progress("objects", 1.0, f"{instances.n_instances} objects from {k} clusters")
     if a.label_maps == "gaussians":
         maps, label_maps = final_maps(
@@ -217,7 +222,7 @@ def segment_scene(
         }
     return Segmentation(
         clustering, assignment, instances, semantic_ids, maps, label_maps, agreement, trusted,
-        voted.unanimous, voted.confusions, ring_moves,
+        voted.unanimous, voted.confusions, ring_moves, left,
     )  # fmt: skip
 
 

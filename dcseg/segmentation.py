@@ -57,6 +57,8 @@ class Segmentation:
             replaced (``AssignConfig.confusion_min_share``).
         rings_given_back: Gaussians of objects' support rings given back to their supports
             (``AssignConfig.ring_plane_tol``, :mod:`dcseg.assign.rings`).
+        background: Gaussians that the class masks leave unlabelled and that stay without a
+            class (``AssignConfig.background_share``).
     """
 
     clustering: Clustering
@@ -70,6 +72,7 @@ class Segmentation:
     unanimous: float = float("nan")
     confusions: int = 0
     rings_given_back: int = 0
+    background: int = 0
 
     @property
     def n_clusters(self) -> int:

@@ -149,6 +149,7 @@ def adopt_fragments(
     evidence: NDArray[np.float64],
     radius: float,
     cfg: AssignConfig,
+    background: NDArray[np.bool_] | None = None,
 ) -> Fragments:
     """Steps 1-2: cluster contacts, and unlabelled clusters adopting their neighbour's class.
 
@@ -159,6 +160,9 @@ def adopt_fragments(
         evidence: ``[N, C]`` class evidence per Gaussian.
         radius: contact radius (world units).
         cfg: ``neighbours``, ``min_contacts``, ``evidence_weight``.
+        background: ``[N]`` Gaussians the class masks leave unlabelled
+            (``AssignConfig.background_share``): an unlabelled cluster made mostly of them is
+            background, not a fragment, and adopts no class. None = none.
     """
     xyz = np.asarray(means, dtype=np.float64).reshape(-1, 3)
     labels = np.asarray(cluster_labels, dtype=np.int64)
@@ -166,11 +170,30 @@ def adopt_fragments(
     classes = _cluster_classes(labels, semantic, k)
     pairs, counts = cluster_contacts(xyz, labels, radius, cfg.neighbours)
     pooled = pooled_evidence(labels, evidence, k)
-    classes, parent = adopt_unlabelled(classes, pairs, counts, pooled, cfg)
+    open_ = _adoptable(pairs, classes, labels, background)
+    classes, parent = adopt_unlabelled(classes, pairs[open_], counts[open_], pooled, cfg)
     out = np.asarray(semantic, dtype=np.int64).copy()
     fill = (labels >= 0) & (out < 0)
     out[fill] = classes[labels[fill]]
     return Fragments(classes, parent, pairs, counts, out)
+
+
+def _adoptable(
+    pairs: NDArray[np.int64],
+    classes: NDArray[np.int64],
+    labels: NDArray[np.int64],
+    background: NDArray[np.bool_] | None,
+) -> NDArray[np.bool_]:
+    """``[P]`` which touching pairs adoption may use: none with an unlabelled cluster most
+    of whose Gaussians are ``background``."""
+    if background is None or not len(pairs):
+        return np.ones(len(pairs), dtype=bool)
+    k = len(classes)
+    member = labels >= 0
+    size = np.bincount(labels[member], minlength=k)
+    behind = np.bincount(labels[member & background], minlength=k)
+    closed = (classes < 0) & (2 * behind > size)
+    return ~(closed[pairs[:, 0]] | closed[pairs[:, 1]])
 
 
 def _cluster_classes(labels: NDArray[np.int64], semantic: NDArray[np.int64], k: int) -> Any:

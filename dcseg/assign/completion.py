@@ -86,6 +86,7 @@ def complete_labels(
     rounds: int,
     evidence_weight: float,
     footprints: NDArray[np.floating[Any]] | None = None,
+    background: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.int64]:
     """Give unlabelled Gaussians next to labelled ones a class (see the module docstring).
 
@@ -99,6 +100,8 @@ def complete_labels(
         evidence_weight: weight of the own evidence share (0 = neighbours only).
         footprints: ``[N]`` each Gaussian's largest scale (world units): overlapping
             footprints also reach (None = the radius only).
+        background: ``[N]`` Gaussians that stay unlabelled (the class masks leave them
+            unlabelled: ``AssignConfig.background_share``); None = none.
 
     Returns:
         ``[N]`` int64 classes; labelled Gaussians keep theirs.
@@ -125,6 +128,8 @@ def complete_labels(
     own = np.divide(ev, total, out=np.zeros_like(ev), where=total > 0)
     for _ in range(rounds):
         known, todo = np.flatnonzero(out >= 0), np.flatnonzero(out < 0)
+        if background is not None:
+            todo = todo[~background[todo]]
         if len(known) == 0 or len(todo) == 0:
             break
         k = min(neighbours, len(known))

@@ -211,6 +211,17 @@ class AssignConfig:
         completion_rounds: passes of completion; each reaches one neighbourhood further.
         evidence_weight: weight of a Gaussian's own class-evidence share against its
             neighbours' class share in completion.
+        background_share: a Gaussian that more than this share of its blending weight (over
+            the views with class maps) puts on pixels the class maps leave unlabelled is
+            background: completion gives it no class, and an unlabelled cluster made mostly
+            of such Gaussians adopts none (:mod:`dcseg.assign.adoption`); 1 = off. Masks that
+            label only some things leave the rest unlabelled on purpose (ground-truth label
+            images with 0 = background, a detector prompted for a few classes): before
+            2026-12-07 adoption spread the objects' classes over it chain by chain (a real
+            RealSense shelf capture with its ground-truth masks: 117k of 173k Gaussians
+            labelled as one of 4 books and boxes, each instance as wide as the shelf). Synthetic
+            masks leave a Gaussian unlabelled in holes and rare-class misses, in a share of
+            its views well below one half.
         trust_agreement: when the class-aware masks agree with the labelled clusters at
             least this much (:func:`dcseg.assign.consistency.mask_agreement`, over the
             Gaussians of labelled clusters before the consistency step), each Gaussian's own
@@ -343,6 +354,7 @@ class AssignConfig:
     complete: bool = True
     completion_rounds: int = 3
     evidence_weight: float = 1.0
+    background_share: float = 0.5
     label_maps: LabelMaps = option(
         "gaussians",
         choices=("gaussians", "clusters"),
@@ -422,7 +434,8 @@ class AssignConfig:
                 f"ring_radius must be > 0 with ring_plane_tol on, got {self.ring_radius}"
             )
         for name, share in (("ring_min_cosine", self.ring_min_cosine),
-                            ("ring_max_share", self.ring_max_share)):  # fmt: skip
+                            ("ring_max_share", self.ring_max_share),
+                            ("background_share", self.background_share)):  # fmt: skip
             if not 0.0 <= share <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {share}")
         if self.ring_rounds < 1:

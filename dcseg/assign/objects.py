@@ -45,6 +45,7 @@ def build_objects(
     cfg: AssignConfig,
     stuff: Sequence[int],
     footprints: NDArray[np.float64] | None = None,
+    background: NDArray[np.bool_] | None = None,
 ) -> tuple[Instances, NDArray[np.int64]]:
     """Adopt unlabelled clusters, complete labels, build object instances, and (with
     ``cfg.follow_evidence_ratio``) let Gaussians follow their own evidence.
@@ -52,7 +53,9 @@ def build_objects(
     ``means`` are the Gaussians' centres and ``radius`` the contact radius
     (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.contact_factor``); ``stuff``
     the vocabulary's stuff classes (:func:`stuff_ids`); ``footprints`` each Gaussian's largest
-    scale, across which label completion also reaches (:mod:`dcseg.assign.completion`).
+    scale, across which label completion also reaches (:mod:`dcseg.assign.completion`);
+    ``background`` the Gaussians that the class masks leave unlabelled, which neither adoption
+    nor completion gives a class (``cfg.background_share``).
     Without evidence, a contact radius, or both ``cfg.objects`` and ``cfg.complete`` off,
     every cluster is one instance and ``semantic_ids`` stay as they are. Without classes (a
     class-agnostic run) and with ``cfg.objects``, touching clusters whose features agree
@@ -66,13 +69,13 @@ def build_objects(
         return agnostic_instances(means, labels, clustering.centers, radius, cfg), semantic_ids
     if (not cfg.objects and not cfg.complete) or radius <= 0 or evidence is None:
         return per_cluster_instances(labels, assignment), semantic_ids
-    fragments = adopt_fragments(means, labels, semantic_ids, evidence, radius, cfg)
+    fragments = adopt_fragments(means, labels, semantic_ids, evidence, radius, cfg, background)
     ids = fragments.semantic if cfg.objects else semantic_ids
     if cfg.complete:
         ids = complete_labels(
             means, ids, evidence, radius=radius, neighbours=cfg.neighbours,
             rounds=cfg.completion_rounds, evidence_weight=cfg.evidence_weight,
-            footprints=footprints,
+            footprints=footprints, background=background,
         )  # fmt: skip
     if not cfg.objects:
         instances = per_cluster_instances(labels, assignment)

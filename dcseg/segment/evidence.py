@@ -187,6 +187,8 @@ class EvidenceSum:
 
     def __init__(self, n: int, n_classes: int) -> None:
         self.evidence = np.zeros((n, n_classes))
+        self.seen = np.zeros(n)
+        """``[N]`` each Gaussian's blending weight over every pixel of the summed views."""
         self.views = 0
 
     def add(self, blend: BlendWeights, class_map: NDArray[Any]) -> None:
@@ -196,6 +198,17 @@ class EvidenceSum:
             add_view_evidence(blend, class_map, self.evidence)
         except ValueError as error:
             raise ValueError(f"view {i}: {error}") from None
+        n = len(self.seen)
+        self.seen += _sum_by(blend.ids.long(), blend.weights.double(), n).cpu().numpy()
+
+    def unlabelled_share(self) -> NDArray[np.float64]:
+        """``[N]`` share of each Gaussian's weight that fell on pixels the class maps leave
+        unlabelled (0 for a Gaussian no view saw)."""
+        unlabelled = np.maximum(self.seen - self.evidence.sum(axis=1), 0.0)
+        share: NDArray[np.float64] = np.divide(
+            unlabelled, self.seen, out=np.zeros_like(self.seen), where=self.seen > 0
+        )
+        return share
 
 
 def class_evidence(

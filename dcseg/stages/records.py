@@ -59,6 +59,7 @@ def segmented_record(
             "unanimous_clusters": round(segmentation.unanimous, 4),  # NaN -> null
             "confusions_undone": segmentation.confusions,
             "ring_gaussians_given_back": segmentation.rings_given_back,
+            "background_gaussians": segmentation.background,
         },
         "metrics_summary": None if metrics is None else metrics["summary"],
     }

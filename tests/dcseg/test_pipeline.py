@@ -99,6 +99,7 @@ def test_run_writes_every_output(run_dir: Path, scene: Path) -> None:
     assert 0.0 <= record["segmentation"]["unanimous_clusters"] <= 1.0
     assert record["segmentation"]["confusions_undone"] >= 0
     assert record["segmentation"]["ring_gaussians_given_back"] >= 0
+    assert record["segmentation"]["background_gaussians"] >= 0
     stems = [p.stem for p in (scene / "rgb").iterdir()]
     for stem in stems:
         ids = read_image(run_dir / "masks" / f"{stem}.png")

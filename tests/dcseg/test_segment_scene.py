@@ -244,3 +244,31 @@ def test_a_vote_its_cluster_evidence_does_not_support_takes_the_supported_class(
     assert seg.semantic_ids.tolist() == [floor] * 8 + [1] * 4
     # the new class's share of the cluster's votes: the masks never voted class 0 for it
     assert seg.assignment.scores[0] == (1.0 if floor else 0.0)
+
+
+def test_what_the_class_masks_leave_unlabelled_stays_unlabelled(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Masks that label only the object (pixels 0-3), the rest left unlabelled (ground-truth
+    label images with 0 = background): the background's cluster touches the object's and,
+    before ``background_share``, adopted its class; now it stays without a class, and so do
+    its Gaussians in completion. ``background_share`` 1 is the old behaviour."""
+    clusters = np.array([0] * 4 + [1] * 8)
+    monkeypatch.setattr(
+        "dcseg.pipeline.cluster_features",
+        lambda *a, **k: Clustering(
+            clusters.copy(), np.eye(2, dtype=np.float32), np.ones(N, np.float32)
+        ),
+    )
+    trained = scene()
+    only_object = np.array([[0] * 4 + [-1] * 8], dtype=np.int32)
+    semantic = {v.name: SemanticMap(v.name, only_object) for v in trained.views}
+    cfg = config("gaussians", objects=True, min_instance_gaussians=1)
+    seg = segment_scene(trained, semantic, 2, cfg)
+    assert seg.assignment.labels.tolist() == [0, -1]
+    assert seg.semantic_ids.tolist() == [0] * 4 + [-1] * 8
+    assert seg.instances.ids.tolist() == [0] * 4 + [-1] * 8 and seg.background == 8
+    old = segment_scene(
+        trained, semantic, 2, replace(cfg, assign=replace(cfg.assign, background_share=1.0))
+    )
+    assert old.semantic_ids.tolist() == [0] * N and old.instances.ids.tolist() == [0] * N

@@ -86,3 +86,15 @@ def test_final_maps_render_label_maps_from_the_gaussians_classes() -> None:
     assert clusters["v0"].tolist() == cluster_map(counted.weights, labels, filtered).tolist()
     assert classes["v0"].tolist() == [[0, 0, 0, 2, 2, -1]]
     assert counted.reads == ["v0", "v0"]  # once per call
+
+
+def test_evidence_sum_says_how_much_of_each_gaussian_fell_on_unlabelled_pixels() -> None:
+    """Gaussian 5 covers an unlabelled pixel in one view and a labelled one in the other: half
+    its weight is unlabelled; Gaussian 0 never reaches a labelled pixel; a Gaussian no view
+    covers has a share of 0."""
+    blend = BlendWeights(1, N, torch.arange(N + 1), torch.arange(N), torch.full((N,), 0.9))
+    total = EvidenceSum(N + 1, 2)
+    total.add(blend, np.array([[-1, 0, 0, 1, 1, -1]]))
+    total.add(blend, np.array([[-1, 0, 0, 1, 1, 1]]))
+    assert np.allclose(total.seen, [1.8] * N + [0.0])
+    assert np.allclose(total.unlabelled_share(), [1.0, 0, 0, 0, 0, 0.5, 0.0])

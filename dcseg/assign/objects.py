@@ -54,8 +54,8 @@ def build_objects(
     (:func:`dcseg.cluster.outliers.adaptive_radius`, ``cfg.contact_factor``); ``stuff``
     the vocabulary's stuff classes (:func:`stuff_ids`); ``footprints`` each Gaussian's largest
     scale, across which label completion also reaches (:mod:`dcseg.assign.completion`);
-    ``background`` the Gaussians that the class masks leave unlabelled, which neither adoption
-    nor completion gives a class (``cfg.background_share``).
+    ``background`` the Gaussians that the class masks leave unlabelled: no class in the end,
+    and neither adoption nor completion gives them one (``cfg.background_share``).
     Without evidence, a contact radius, or both ``cfg.objects`` and ``cfg.complete`` off,
     every cluster is one instance and ``semantic_ids`` stay as they are. Without classes (a
     class-agnostic run) and with ``cfg.objects``, touching clusters whose features agree
@@ -86,6 +86,9 @@ def build_objects(
         )  # fmt: skip
     if cfg.follow_evidence_ratio > 0:  # after the objects: a few moved Gaussians leave theirs
         ids = follow_evidence(ids, evidence, cfg.follow_evidence_ratio)
+        instances = instances.of_classes(ids)
+    if background is not None and (background & (ids >= 0)).any():
+        ids = np.where(background, -1, ids)  # what an object's cluster took of the background
         instances = instances.of_classes(ids)
     return instances, ids
 

@@ -250,10 +250,11 @@ def test_what_the_class_masks_leave_unlabelled_stays_unlabelled(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Masks that label only the object (pixels 0-3), the rest left unlabelled (ground-truth
-    label images with 0 = background): the background's cluster touches the object's and,
-    before ``background_share``, adopted its class; now it stays without a class, and so do
-    its Gaussians in completion. ``background_share`` 1 is the old behaviour."""
-    clusters = np.array([0] * 4 + [1] * 8)
+    label images with 0 = background). The object's cluster also took Gaussians 4-5 of the
+    background; the background's cluster (6-11) touches it. Before ``background_share`` the
+    background adopted the object's class and 4-5 kept it; now neither has a class.
+    ``background_share`` 1 is the old behaviour."""
+    clusters = np.array([0] * 6 + [1] * 6)
     monkeypatch.setattr(
         "dcseg.pipeline.cluster_features",
         lambda *a, **k: Clustering(

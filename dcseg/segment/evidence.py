@@ -199,7 +199,7 @@ class EvidenceSum:
         except ValueError as error:
             raise ValueError(f"view {i}: {error}") from None
         n = len(self.seen)
-        self.seen += _sum_by(blend.ids.long(), blend.weights.double(), n).cpu().numpy()
+        self.seen += _sum_by(blend.ids.long(), blend.weights.detach().double(), n).cpu().numpy()
 
     def unlabelled_share(self) -> NDArray[np.float64]:
         """``[N]`` share of each Gaussian's weight that fell on pixels the class maps leave

@@ -315,15 +315,17 @@ def _check_semantic(
         return vocabulary
     tally = _SemanticTally(vocabulary)
     read_problems: list[Problem] = []
+    sizes: dict[str, tuple[tuple[int, int], str]] = {}  # not the maps: one is held at a time
     try:
         for item in iter_semantic_maps(paths.semantic_masks, vocabulary, unlabelled=unlabelled):
             if isinstance(item, Problem):
                 read_problems.append(item)
                 continue
             tally.add(item)
-            problems += _check_against_frames({item.name: item}, _semantic_size, frame_sizes)
+            sizes[item.name] = _semantic_size(item)
     except InputError as error:  # the folder itself is missing
         read_problems.extend(error.problems)
+    problems += _check_against_frames(sizes, lambda size: size, frame_sizes)
     problems += read_problems
     if not read_problems:
         summary["semantic_masks"] = {
@@ -360,14 +362,16 @@ def _check_against_frames(
     frame_sizes: FrameSizes | None,
 ) -> list[Problem]:
     """Masks must belong to listed frames (their stems may add a part name to the frame's:
-    :func:`~dcseg.io.folders.frame_of`) and have the frame's aspect ratio (when the frame
-    could be read)."""
+    :func:`~dcseg.io.folders.frame_of`), one entry each, and have the frame's aspect ratio
+    (when the frame could be read)."""
     if frame_sizes is None:
         return []
     out: list[Problem] = []
+    claims: dict[str, list[str]] = {}
     for stem, item in sorted(per_frame.items()):
         (width, height), source = size_of(item)
         name = frame_of(stem, frame_sizes) or stem
+        claims.setdefault(name, []).append(source or stem)
         if name not in frame_sizes:
             out.append(Problem(source or name, f"mask for frame {name!r}, which the capture lacks"))
             continue
@@ -383,7 +387,10 @@ def _check_against_frames(
                     "(different aspect ratio, cannot rescale)",
                 )
             )
-    return out
+    twice = [(name, found) for name, found in claims.items() if len(found) > 1]
+    return out + [
+        Problem(f[0], f"frame {n!r} has several masks: " + ", ".join(f)) for n, f in twice
+    ]
 
 
 def summarise_capture(capture: Capture) -> dict[str, Any]:

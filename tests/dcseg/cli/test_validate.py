@@ -94,6 +94,18 @@ def test_masks_named_with_a_part_after_the_frame_pass(copy: Path) -> None:
     ]
 
 
+def test_two_mask_files_of_one_frame_are_named(copy: Path) -> None:
+    """``<frame>.png`` and ``<frame>-label.png`` both claim the frame: validation says so, as
+    the run's reader does."""
+    stem = first_stem(copy)
+    semantic = copy / "masks" / "semantic"
+    shutil.copy(semantic / f"{stem}.png", semantic / f"{stem}-label.png")
+    report = validate_inputs(paths_of(copy))
+    assert [p.reason for p in report.problems] == [
+        f"frame {stem!r} has several masks: semantic/{stem}.png, semantic/{stem}-label.png"
+    ]
+
+
 def test_json_report(scene: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main([*cli_args(scene), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)

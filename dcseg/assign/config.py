@@ -224,8 +224,8 @@ class AssignConfig:
             object IoU against those masks was 24.2 and 85 % of the background was labelled an
             object; 78.7 and 4.5 % now (0.5: 81.5 and 1.3 %, but on detector layout 5 a ball
             that the detector misses in most of the views of its far side lost 7 % of its
-            points). 9 synthetic layouts (heavy, detector, lowres, realistic) move by 0.02
-            at most: their masks leave a Gaussian unlabelled in holes and misses only.
+            points). 15 synthetic layouts (clean, default, heavy, detector, lowres, realistic)
+            move by 0.03 at most: their masks leave a Gaussian unlabelled in holes and misses.
         trust_agreement: when the class-aware masks agree with the labelled clusters at
             least this much (:func:`dcseg.assign.consistency.mask_agreement`, over the
             Gaussians of labelled clusters before the consistency step), each Gaussian's own

@@ -358,7 +358,15 @@ class AssignConfig:
     complete: bool = True
     completion_rounds: int = 3
     evidence_weight: float = 1.0
-    background_share: float = 0.8
+    background_share: float = option(
+        0.8,
+        bounds=(0.0, 1.0),
+        help="a Gaussian with more than this share of its weight on pixels the class maps "
+        "leave unlabelled is background and gets no class (masks that label only some "
+        "things); 1 = off, for masks that abstain where unsure",
+        flag="--background-share",
+        group="segment",
+    )
     label_maps: LabelMaps = option(
         "gaussians",
         choices=("gaussians", "clusters"),

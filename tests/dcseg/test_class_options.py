@@ -1,6 +1,7 @@
-"""The job options ``segment.stuff_classes`` and ``segment.unlabelled_id``: declared once, set
-from the API and the command line, refused naming the field, and read where they act (the
-class maps of the segment stage, the stuff classes of object building)."""
+"""The job options ``segment.stuff_classes``, ``segment.unlabelled_id`` and
+``segment.background_share``: declared once, set from the API and the command line, refused
+naming the field, and read where they act (the class maps of the segment stage, the stuff
+classes of object building)."""
 
 from __future__ import annotations
 
@@ -61,6 +62,8 @@ def test_the_options_reach_the_config_from_the_api() -> None:
         ({"unlabelled_id": 65536}, "options.segment.unlabelled_id"),
         ({"unlabelled_id": 1.5}, "options.segment.unlabelled_id"),
         ({"unlabelled_id": "zero"}, "options.segment.unlabelled_id"),
+        ({"background_share": 1.5}, "options.segment.background_share"),
+        ({"background_share": -0.1}, "options.segment.background_share"),
         ({"stuff_classes": ["wall", ""]}, "options.segment.stuff_classes.1"),
         ({"stuff_classes": [" rug"]}, "options.segment.stuff_classes.0"),
         ({"stuff_classes": [3]}, "options.segment.stuff_classes.0"),
@@ -79,6 +82,7 @@ def test_bad_values_are_refused_naming_the_field(given: dict[str, Any], where: s
     [
         ("unlabelled_id", -1),
         ("unlabelled_id", True),
+        ("background_share", 1.5),
         ("stuff_classes", ("wall", " ")),
         ("stuff_classes", "wall"),
     ],
@@ -94,11 +98,12 @@ def test_the_flags_give_the_same_options() -> None:
 
     base = ["run", "c", "--agnostic-masks", "a", "--semantic-masks", "s", "--vocabulary", "v"]
     flags = ["--out", "o", "--stuff-classes", "wall, rug", "--unlabelled-id", "0"]
-    args = build_parser().parse_args([*base, *flags])
+    args = build_parser().parse_args([*base, *flags, "--background-share", "1"])
     options = given(args, "segment")
-    assert options == {"stuff_classes": ("wall", "rug"), "unlabelled_id": 0}
+    assert options == {"stuff_classes": ("wall", "rug"), "unlabelled_id": 0, "background_share": 1}
     assign = build("fast", {"segment": options}).pipeline.assign
     assert assign.stuff_classes == ("wall", "rug") and assign.unlabelled_id == 0
+    assert assign.background_share == 1.0
     with pytest.raises(SystemExit, match=r"--unlabelled-id \(options.segment.unlabelled_id\)"):
         build("fast", {"segment": {"unlabelled_id": 70000}})
     with pytest.raises(SystemExit):

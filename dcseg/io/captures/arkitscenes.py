@@ -26,6 +26,7 @@ by time. Confidence maps are read only with ``CaptureOptions.min_confidence`` > 
 from __future__ import annotations
 
 import logging
+import math
 import re
 from pathlib import Path
 
@@ -126,6 +127,8 @@ def _camera(path: Path, root: Path) -> Camera:
         raise InputError.single(shown, f"cannot read file ({exc.strerror})") from None
     except ValueError:
         raise InputError.single(shown, "expected 6 numbers 'width height fx fy cx cy'") from None
+    if not all(map(math.isfinite, (width, height, fx, fy, cx, cy))):
+        raise InputError.single(shown, f"expected 6 finite numbers, got {values}")
     if width != int(width) or height != int(height) or width < 1 or height < 1:
         raise InputError.single(shown, f"width and height must be positive integers, got {values}")
     return Camera(fx, fy, cx, cy, (int(width), int(height)), shown)

@@ -106,6 +106,7 @@ def _observations(images: Path, points: tuple[int, int], lines: list[str]) -> ND
         except ValueError:
             values = np.zeros(0)
         values = values[: values.size // 3 * 3].reshape(-1, 3)
+        values = values[np.isfinite(values).all(axis=1)]
         out = np.zeros(len(values), dtype=_OBSERVATION)
         out["x"], out["y"], out["id"] = values[:, 0], values[:, 1], values[:, 2].astype(np.int64)
         return out
@@ -114,15 +115,29 @@ def _observations(images: Path, points: tuple[int, int], lines: list[str]) -> ND
         return np.frombuffer(handle.read(24 * count), dtype=_OBSERVATION)
 
 
+def _xyz(values: list[str], where: str) -> NDArray[np.float64]:
+    """``X Y Z`` of a ``points3D.txt`` line; an :class:`InputError` naming ``where`` unless
+    all three are finite numbers."""
+    shown = " ".join(values)
+    try:
+        xyz = np.array([float(v) for v in values], dtype=np.float64)
+    except ValueError:
+        raise InputError.single(where, f"expected X Y Z numbers, got {shown!r}") from None
+    if not np.isfinite(xyz).all():
+        raise InputError.single(where, f"X Y Z must be finite, got {shown!r}")
+    return xyz
+
+
 def _points(path: Path, shown: str, wanted: set[int]) -> dict[int, NDArray[np.float64]]:
     """The coordinates of the ``wanted`` 3D points (``points3D.bin`` or ``.txt``)."""
     found: dict[int, NDArray[np.float64]] = {}
     if path.suffix == ".txt":
-        for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+        for number, line in enumerate(lines, 1):
             values = line.split()
             if len(values) >= 4 and not values[0].startswith("#") and values[0].isdigit():
                 if int(values[0]) in wanted:
-                    found[int(values[0])] = np.array([float(v) for v in values[1:4]])
+                    found[int(values[0])] = _xyz(values[1:4], f"{shown}:line {number}")
         return found
     handle, size = open_binary(path, shown)
     with handle:

@@ -130,6 +130,18 @@ def test_malformed_files(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     ]
 
 
+@pytest.mark.parametrize("value", ["1e999", "nan", "inf"])
+def test_pincam_with_a_non_finite_number_is_named(
+    rgbd_scene: RgbdScene, tmp_path: Path, value: str
+) -> None:
+    root = write_arkitscenes(rgbd_scene, tmp_path)
+    pincam = root / f"{VIDEO}_frames" / "lowres_wide_intrinsics" / f"{VIDEO}_{stamp(0)}.pincam"
+    pincam.write_text(f"{value} 12 20 22 7.5 5.5\n")
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert f"{VIDEO}_{stamp(0)}.pincam: expected 6 finite numbers" in str(info.value)
+
+
 def test_zip_with_options(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     root = write_arkitscenes(rgbd_scene, tmp_path / "cap")
     check_zip_with_options(rgbd_scene, root, "arkitscenes")

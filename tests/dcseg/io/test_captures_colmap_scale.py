@@ -159,3 +159,18 @@ def test_pose_scale_scales_rgb_only_poses_and_sparse_points(tmp_path: Path) -> N
 def test_pose_scale_out_of_range_is_refused(value: float) -> None:
     with pytest.raises(ValueError, match="pose_scale"):
         CaptureOptions(pose_scale=value)
+
+
+@pytest.mark.parametrize(
+    ("bad", "message"), [("1.2x", "expected X Y Z numbers"), ("nan", "X Y Z must be finite")]
+)
+def test_malformed_sparse_point_is_named(tmp_path: Path, bad: str, message: str) -> None:
+    root = write_model(make_scene(), tmp_path, 1.0, binary=False)
+    path = root / "sparse" / "0" / "points3D.txt"
+    lines = path.read_text().splitlines()
+    fields = lines[1].split()
+    lines[1] = " ".join([fields[0], bad, *fields[2:]])
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as info:
+        read_capture(root)
+    assert str(info.value).startswith(f"sparse/0/points3D.txt:line 2: {message}, got '{bad} ")

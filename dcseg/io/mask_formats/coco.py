@@ -192,7 +192,7 @@ def _mask_of(annotation: dict[str, Any], image: _Image) -> tuple[RLE | None, str
         return None, "segmentation must be polygons [[x1, y1, ...], ...] or an RLE"
     polygons = [seg] if all(_is_number(v) for v in seg) else seg
     for k, polygon in enumerate(polygons):
-        reason = _polygon_problem(polygon)
+        reason = _polygon_problem(polygon) or _outside(polygon, image)
         if reason:
             return None, f"segmentation[{k}] {reason}"
     rles = mask_util.frPyObjects([list(map(float, p)) for p in polygons], image.height, image.width)
@@ -211,6 +211,23 @@ def _polygon_problem(polygon: Any) -> str:
     if not np.isfinite(np.asarray(polygon, dtype=np.float64)).all():
         return "has a coordinate that is not finite"
     return ""
+
+
+def _outside(polygon: list[float], image: _Image) -> str:
+    """Why a polygon's vertices lie too far outside its image (more than the image's own size
+    beyond an edge), or "": pycocotools rasterises edges pixel by pixel in C, and coordinates
+    like 1e11 overflow its buffers and crash the process."""
+    xy = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
+    limits = np.array([image.width, image.height], dtype=np.float64)
+    far = (xy < -limits) | (xy > 2 * limits)
+    if not far.any():
+        return ""
+    point = int(np.flatnonzero(far.any(axis=1))[0])
+    x, y = polygon[2 * point], polygon[2 * point + 1]
+    return (
+        f"point {point + 1} ({x:g}, {y:g}) lies beyond the {image.width}x{image.height} image "
+        "by more than its size"
+    )
 
 
 def _is_number(value: Any) -> bool:

@@ -126,6 +126,32 @@ def test_error_polygon_with_two_points_names_file_annotation_and_field(tmp_path:
     ]
 
 
+def test_error_polygon_far_outside_the_image_is_named_not_rasterised(tmp_path: Path) -> None:
+    """pycocotools crashes the process (segfault) on a vertex like 1e11: refused first."""
+    far = [2.0, 1.0, 99999999999.0, 1.0, 7.0, 5.0]
+    annotations = [{"id": 7, "image_id": 1, "category_id": 1, "segmentation": [SQUARE, far]}]
+    write_json(tmp_path / "m" / "coco.json", coco(annotations))
+    with pytest.raises(InputError) as info:
+        read_agnostic_masks(tmp_path / "m")
+    assert str(info.value) == (
+        "m/coco.json: annotations[0] (id 7): segmentation[1] point 2 (1e+11, 1) lies beyond the "
+        "10x8 image by more than its size"
+    )
+    with pytest.raises(InputError, match=r"segmentation\[1\] point 2 \(1e\+11, 1\)"):
+        read_semantic_maps(tmp_path / "m", Vocabulary(("chair",)))
+
+
+def test_polygon_a_little_outside_the_image_is_clipped_as_pycocotools_does(
+    tmp_path: Path,
+) -> None:
+    spill = [-3.0, -2.0, 12.0, -2.0, 12.0, 4.0, -3.0, 4.0]
+    annotations = [{"id": 7, "image_id": 1, "category_id": 1, "segmentation": [spill]}]
+    write_json(tmp_path / "m" / "coco.json", coco(annotations, n_images=1))
+    dense = decode_masks(read_agnostic_masks(tmp_path / "m")["frame_0000"])
+    np.testing.assert_array_equal(dense[0], reference([spill], 8, 10))
+    assert dense[0].any()
+
+
 def test_error_images_fields(tmp_path: Path) -> None:
     data = coco([])
     data["images"] += [{"id": 9, "file_name": "x.jpg", "height": 0, "width": 4}]

@@ -53,6 +53,7 @@ from dcseg.io.mask_formats.rle import to_rle as _to_rle
 from dcseg.io.mask_formats.sam_folder import read_png_folder
 from dcseg.io.mask_formats.scores import MinScores
 from dcseg.io.mask_formats.stacks import is_stack, read_stack
+from dcseg.io.npy import read_npy_map
 from dcseg.types import AgnosticMasks
 
 __all__ = [
@@ -400,7 +401,7 @@ def _read_label_map(path: Path, root: Path) -> tuple[NDArray[np.integer[Any]], i
         if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
             raise InputError.single(shown, _label_png_reason(image))
         return image, 1, None
-    labels = _load_npy(path, shown)
+    labels = read_npy_map(path, shown)
     if labels.ndim != 2 or labels.dtype.kind not in "iu":
         reason = f"expected a 2D integer label map, got {labels.ndim}D {labels.dtype}"
         raise InputError.single(shown, reason)
@@ -411,13 +412,6 @@ def _label_png_reason(image: NDArray[Any]) -> str:
     if image.ndim != 2:
         return f"expected a single-channel label map, got {image.shape[2]} channels"
     return f"expected a uint8 or uint16 label map, got {image.dtype}"
-
-
-def _load_npy(path: Path, shown: str) -> NDArray[Any]:
-    try:
-        return np.asarray(np.load(path, allow_pickle=False))
-    except (OSError, ValueError, EOFError) as err:
-        raise InputError.single(shown, f"cannot read .npy array: {err}") from err
 
 
 # --------------------------------------------------------------------------- small helpers

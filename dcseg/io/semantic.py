@@ -43,6 +43,7 @@ from dcseg.io.mask_formats import (
 from dcseg.io.mask_formats.coco import iter_coco_classes
 from dcseg.io.mask_formats.palette import is_palette_png, read_palette_indices
 from dcseg.io.mask_formats.panoptic import iter_panoptic_classes
+from dcseg.io.npy import read_npy_map
 from dcseg.types import SemanticMap, Vocabulary
 
 __all__ = [
@@ -320,10 +321,7 @@ def _read_png_map(path: Path, root: Path, shown: str) -> NDArray[Any]:
 
 
 def _read_npy_map(path: Path, shown: str) -> NDArray[Any]:
-    try:
-        array = np.asarray(np.load(path, allow_pickle=False))
-    except (OSError, ValueError, EOFError) as err:
-        raise InputError.single(shown, f"cannot read .npy array: {err}") from err
+    array = read_npy_map(path, shown)
     if array.dtype.kind not in "iu":
         raise InputError.single(shown, f"expected an integer class map, got {array.dtype}")
     if array.ndim != 2:

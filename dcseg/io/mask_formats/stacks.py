@@ -20,6 +20,7 @@ from dcseg.errors import InputError
 from dcseg.io.images import MAX_PIXELS, charge_pixels, display_path
 from dcseg.io.mask_formats.rle import RLE, encode
 from dcseg.io.mask_formats.scores import NPZ_SCORE_KEYS, MinScores
+from dcseg.io.npy import NUMPY_FILE_ERRORS
 from dcseg.types import AgnosticMasks
 
 __all__ = ["is_stack", "read_stack", "stack_pixels"]
@@ -34,7 +35,7 @@ def is_stack(path: Path) -> bool:
         return True
     try:
         return int(np.load(path, mmap_mode="r", allow_pickle=False).ndim) in (3, 4)
-    except (OSError, ValueError, EOFError):
+    except NUMPY_FILE_ERRORS:
         return False
 
 
@@ -42,7 +43,7 @@ def stack_pixels(path: Path) -> int | None:
     """``M * H * W`` of a stack from its header (nothing decompressed), or None if unreadable."""
     try:
         shape, _ = _header(path, path.name)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+    except NUMPY_FILE_ERRORS:
         return None
     return int(np.prod(shape, dtype=np.int64))
 
@@ -62,7 +63,7 @@ def read_stack(path: Path, stem: str, root: Path, min_scores: MinScores) -> Agno
         count, height, width = _checked_shape(*_header(path, shown), shown)
         charge_pixels(count * height * width, shown)
         stack, scores = _load(path, shown)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+    except NUMPY_FILE_ERRORS as err:
         if isinstance(err, InputError):
             raise
         raise InputError.single(shown, f"cannot read mask stack: {err}") from err

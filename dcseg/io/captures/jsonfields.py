@@ -65,8 +65,11 @@ class JsonFields:
             raise InputError(self.problems)
 
     def get(self, obj: dict[str, Any], key: str, where: str, required: bool = True) -> Any:
-        """``obj[key]``; records ``missing`` when required and absent."""
+        """``obj[key]``; records ``missing`` when required and absent, ``null`` when required
+        and null (an optional null field reads as absent)."""
         if key in obj:
+            if obj[key] is None and required:
+                self.add(join(where, key), "must not be null")
             return obj[key]
         if required:
             self.add(join(where, key), "missing")

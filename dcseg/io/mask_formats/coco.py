@@ -161,7 +161,8 @@ def _attach(annotations: list[Any], images: dict[int, _Image], shown: str) -> li
         if not isinstance(annotation, dict):
             problems.append(Problem(shown, f"annotations[{i}] must be an object"))
             continue
-        image = images.get(annotation.get("image_id", -1))
+        ident = annotation.get("image_id", -1)
+        image = images.get(ident) if isinstance(ident, int) else None
         if image is None:
             got = annotation.get("image_id")
             reason = f"{_where(i, annotation)}: image_id {got!r} is not in 'images'"

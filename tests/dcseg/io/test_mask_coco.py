@@ -141,6 +141,16 @@ def test_error_polygon_far_outside_the_image_is_named_not_rasterised(tmp_path: P
         read_semantic_maps(tmp_path / "m", Vocabulary(("chair",)))
 
 
+def test_error_image_id_of_the_wrong_type_is_named(tmp_path: Path) -> None:
+    annotations = [{"id": 7, "image_id": {"a": 1}, "segmentation": [SQUARE]}]
+    write_json(tmp_path / "m" / "coco.json", coco(annotations))
+    with pytest.raises(InputError) as info:
+        read_agnostic_masks(tmp_path / "m")
+    assert str(info.value) == (
+        "m/coco.json: annotations[0] (id 7): image_id {'a': 1} is not in 'images'"
+    )
+
+
 def test_polygon_a_little_outside_the_image_is_clipped_as_pycocotools_does(
     tmp_path: Path,
 ) -> None:

@@ -21,7 +21,7 @@ import pycocotools.mask as mask_util
 
 from dcseg.errors import InputError, Problem
 from dcseg.io.folders import FrameSelection
-from dcseg.io.images import display_path, resize_nearest
+from dcseg.io.images import MAX_PIXELS, display_path, resize_nearest
 from dcseg.io.mask_formats import MaskLayout
 from dcseg.io.mask_formats.categories import CategoryMap
 from dcseg.io.mask_formats.rle import RLE, decode_rle, is_count, to_rle
@@ -144,6 +144,11 @@ def _images(data: dict[str, Any], shown: str) -> tuple[dict[int, _Image], list[P
         if bad:
             listed = ", ".join(bad)
             problems.append(Problem(shown, f"images[{i}]: missing or invalid {listed}"))
+            continue
+        if fields["height"] * fields["width"] > MAX_PIXELS:
+            size = f"{fields['width']}x{fields['height']}"
+            reason = f"images[{i}]: {size} is above the limit of {MAX_PIXELS:,} pixels"
+            problems.append(Problem(shown, reason))
             continue
         stem = Path(str(name)).stem
         if stem in stems or fields["id"] in images:

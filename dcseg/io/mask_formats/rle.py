@@ -12,6 +12,8 @@ import numpy as np
 import pycocotools.mask as mask_util
 from numpy.typing import NDArray
 
+from dcseg.io.images import MAX_PIXELS
+
 __all__ = ["RLE", "decode_counts", "decode_rle", "encode", "is_count", "to_rle"]
 
 RLE = dict[str, Any]
@@ -25,6 +27,8 @@ def to_rle(seg: Any) -> tuple[RLE | None, str]:
     if not (isinstance(hw, list) and len(hw) == 2 and all(is_count(v) for v in hw)):
         return None, f"RLE size must be [height, width], got {hw!r}"
     height, width = hw
+    if height * width > MAX_PIXELS:
+        return None, f"RLE size {width}x{height} is above the limit of {MAX_PIXELS:,} pixels"
     counts = seg["counts"]
     if isinstance(counts, list):
         runs = np.asarray(counts) if all(is_count(c) for c in counts) else None

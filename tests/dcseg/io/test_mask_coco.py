@@ -11,6 +11,7 @@ import pytest
 
 from dcseg.errors import InputError
 from dcseg.io.folders import FrameSelection
+from dcseg.io.images import MAX_PIXELS
 from dcseg.io.mask_formats import COCO_INSTANCES, detect_masks
 from dcseg.io.mask_formats.rle import decode_rle
 from dcseg.io.masks import decode_masks, read_agnostic_masks
@@ -166,13 +167,28 @@ def test_error_images_fields(tmp_path: Path) -> None:
     data = coco([])
     data["images"] += [{"id": 9, "file_name": "x.jpg", "height": 0, "width": 4}]
     data["images"] += [{"id": 1, "file_name": "y.jpg", "height": 2, "width": 4}]
+    data["images"] += [{"id": 5, "file_name": "z.jpg", "height": 99999999999, "width": 10}]
     write_json(tmp_path / "m" / "coco.json", data)
     with pytest.raises(InputError) as info:
         read_agnostic_masks(tmp_path / "m")
     assert [str(p) for p in info.value.problems] == [
         "m/coco.json: images[2]: missing or invalid height",
         "m/coco.json: images[3]: frame 'y' or id listed twice",
+        f"m/coco.json: images[4]: 10x99999999999 is above the limit of {MAX_PIXELS:,} pixels",
     ]
+
+
+def test_error_rle_larger_than_an_image_may_be(tmp_path: Path) -> None:
+    """A few bytes of RLE can claim 10^10 pixels: refused before anything is decoded."""
+    bomb = {"size": [100000, 100000], "counts": [10**10]}
+    annotations = [{"id": 3, "image_id": 1, "segmentation": bomb}]
+    write_json(tmp_path / "m" / "coco.json", coco(annotations))
+    with pytest.raises(InputError) as info:
+        read_agnostic_masks(tmp_path / "m")
+    assert str(info.value) == (
+        "m/coco.json: annotations[0] (id 3): segmentation: RLE size 100000x100000 is above the "
+        f"limit of {MAX_PIXELS:,} pixels"
+    )
 
 
 def test_error_not_coco_and_malformed_json(tmp_path: Path) -> None:

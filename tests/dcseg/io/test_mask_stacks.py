@@ -215,3 +215,11 @@ def test_run_flags_set_the_thresholds() -> None:
     assert min_scores(job_config(parsed).pipeline.affinity) == MinScores(0.0, 0.9, 0.95)
     with pytest.raises(SystemExit, match="--min-mask-score"):
         job_config(build_parser().parse_args([*args, "--out", "o", "--min-mask-score", "2"]))
+
+
+def test_error_sam_record_larger_than_an_image_may_be(tmp_path: Path) -> None:
+    """A SAM record's RLE gives its image's size: a few bytes can claim 3.6e9 pixels."""
+    bomb = {"size": [60000, 60000], "counts": [60000 * 60000]}
+    write_json(tmp_path / "f.json", [{"segmentation": bomb}])
+    with pytest.raises(InputError, match=r"f\.json.*RLE size 60000x60000 is above the limit"):
+        read_agnostic_masks(tmp_path)

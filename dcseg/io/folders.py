@@ -126,6 +126,17 @@ class FrameSelection:
         return kept, problems
 
 
+def inside(root: Path, name: str) -> Path | None:
+    """``root / name`` when ``name`` (a file name a capture's own listing gives) is a relative
+    path that stays inside ``root``; None for an absolute path, one that climbs out, or one
+    holding a NUL byte (which no file name can)."""
+    if "\0" in name or Path(name).is_absolute():
+        return None
+    if not (root / name).resolve().is_relative_to(root.resolve()):
+        return None
+    return root / name
+
+
 def link_or_copy(src: Path, dst: Path) -> None:
     """Hard-link ``src`` to ``dst`` (a copy across file systems), replacing ``dst``; run files
     are never modified in place, so a link is as good as a copy."""

@@ -68,6 +68,7 @@ from dcseg.io.captures.common import (
     rel,
     warn_if_options_intrinsics,
 )
+from dcseg.io.folders import inside
 from dcseg.types import Lens
 
 __all__ = ["MODELS", "list_frames", "matches", "model_folder"]
@@ -404,9 +405,10 @@ def _add_image(
     pose = _c2w(image)
     if isinstance(pose, str):
         reasons.append(pose)
-    rgb = root / "images" / image.name
-    if not rgb.resolve().is_relative_to((root / "images").resolve()):
+    rgb = inside(root / "images", image.name)
+    if rgb is None:
         reasons.append(f"NAME {image.name!r} must stay inside images/")
+        rgb = root / "images"
     listing.problems.extend(Problem(image.source, reason) for reason in reasons)
     if reasons or not isinstance(camera, Camera) or isinstance(pose, str):
         listing.unlisted.append(name)

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcseg.errors import InputError, Problem
+from dcseg.io.folders import inside
 
 __all__ = ["JsonFields", "load_json"]
 
@@ -146,11 +147,10 @@ class JsonFields:
         """``root / value`` when ``value`` is a relative path staying inside ``root``."""
         if value is None:
             return None
-        path = (root / value).resolve()
-        if Path(value).is_absolute() or not path.is_relative_to(root.resolve()):
+        path = inside(root, value)
+        if path is None:
             self.add(where, f"path {value!r} must be relative to and inside the capture folder")
-            return None
-        return root / value
+        return path
 
 
 def _kind(value: Any) -> str:

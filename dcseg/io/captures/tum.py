@@ -51,6 +51,7 @@ from dcseg.io.captures.common import (
     options_camera,
     warn_if_options_intrinsics,
 )
+from dcseg.io.folders import inside
 from dcseg.types import Lens
 
 __all__ = ["DEPTH_SCALE", "TOLERANCE", "list_frames", "matches"]
@@ -182,13 +183,12 @@ class _Times:
 
 
 def _inside(root: Path, value: str, where: str, problems: list[Problem]) -> Path | None:
-    path = (root / value).resolve()
-    if Path(value).is_absolute() or not path.is_relative_to(root.resolve()):
+    path = inside(root, value)
+    if path is None:
         problems.append(
             Problem(where, f"path {value!r} must be relative to and inside the capture")
         )
-        return None
-    return root / value
+    return path
 
 
 def _no_match(row: _Row, part: str, source: str, gap: float, tolerance: float) -> Problem:

@@ -242,6 +242,16 @@ def test_gap_in_the_ground_truth(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     ]
 
 
+def test_file_name_with_a_nul_byte_is_named(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
+    root = write_tum(rgbd_scene, tmp_path)
+    edit_line(root / "rgb.txt", 4, f"{stamps(4)[0]} rgb/a\0b.png")
+    with pytest.raises(InputError) as info:
+        read_capture(root, OPTIONS)
+    assert [str(p) for p in info.value.problems] == [
+        "rgb.txt:line 4: path 'rgb/a\\x00b.png' must be relative to and inside the capture"
+    ]
+
+
 def test_missing_files_and_escaping_paths(rgbd_scene: RgbdScene, tmp_path: Path) -> None:
     root = write_tum(rgbd_scene, tmp_path)
     edit_line(root / "rgb.txt", 4, f"{stamps(4)[0]} ../outside.png")

@@ -141,6 +141,9 @@ class JsonFields:
         if matrix.shape != (4, 4):
             self.add(join(where, key), "must be a 4x4 array of numbers (rows of 4)")
             return None
+        if not np.isfinite(matrix).all():
+            self.add(join(where, key), "must hold finite numbers (no NaN or infinity)")
+            return None
         return matrix
 
     def relative_file(self, root: Path, value: str | None, where: str) -> Path | None:

@@ -16,6 +16,7 @@ import plyfile
 from numpy.typing import NDArray
 
 from dcseg.errors import InputError
+from dcseg.io.ply_file import open_ply
 from dcseg.types import GroundTruth
 
 __all__ = ["read_ground_truth", "read_ground_truth_points", "write_ground_truth_ply"]
@@ -117,10 +118,7 @@ def _parse(path: Path, shown: str) -> plyfile.PlyData:
     # memory-mapped (copy-on-write): plyfile reads an unmapped binary element one property of
     # one vertex at a time (4.8 s for 294k points, against ~10 ms mapped); ASCII files and
     # list properties still take plyfile's element-by-element path
-    try:
-        return plyfile.PlyData.read(str(path), mmap="c")
-    except (plyfile.PlyParseError, ValueError, EOFError, IndexError, OSError) as err:
-        raise InputError.single(shown, f"not a readable PLY file: {err}") from err
+    return open_ply(path, shown, mmap=True)
 
 
 def _points(vertex: NDArray[Any], shown: str) -> NDArray[np.float64]:

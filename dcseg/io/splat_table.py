@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from plyfile import PlyData, PlyElement
 
 from dcseg.errors import InputError
+from dcseg.io.ply_file import open_ply
 
 BASE = ("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2")
 TAIL = ("opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
@@ -71,12 +72,7 @@ class SplatTable:
 
 def read_vertex(path: str) -> NDArray[Any]:
     """The ``vertex`` element of a PLY file as a structured array."""
-    try:
-        ply = PlyData.read(path)
-    except FileNotFoundError:
-        raise InputError.single(path, "file not found") from None
-    except Exception as exc:  # plyfile raises several types for malformed headers
-        raise InputError.single(path, f"not a readable PLY file ({exc})") from None
+    ply = open_ply(Path(path), path)
     if "vertex" not in [e.name for e in ply.elements]:
         raise InputError.single(path, "PLY file has no 'vertex' element")
     data: NDArray[Any] = ply["vertex"].data

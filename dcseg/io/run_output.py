@@ -16,7 +16,6 @@ so a crashed run never leaves a half-written output)::
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 from collections.abc import Mapping, Sequence
@@ -26,9 +25,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from plyfile import PlyData
 
 from dcseg.errors import InputError
+from dcseg.io.captures.jsonfields import load_json
 from dcseg.io.exports import (
     instance_records,
     write_instances_json,
@@ -39,6 +38,7 @@ from dcseg.io.exports import (
 from dcseg.io.images import read_image, resize_nearest, write_png
 from dcseg.io.jsonfile import write_json
 from dcseg.io.ply import read_gaussians_ply, write_gaussians_ply
+from dcseg.io.ply_file import open_ply
 from dcseg.io.run_state import (
     BlendMemory,
     load_affinity,
@@ -236,15 +236,25 @@ def load_run(run: Path, memory_mb: int = 0) -> SavedRun:
     if (state / "vocabulary.json").is_file():  # absent in trained-only runs
         vocabulary = read_vocabulary(state / "vocabulary.json")
         semantic = read_semantic_maps(state / "semantic", vocabulary)
-    names = json.loads((state / "preview.json").read_text(encoding="utf-8"))["views"]
+    preview = load_json(state / "preview.json", str(state / "preview.json"))
+    names = preview.get("views") if isinstance(preview, dict) else None
+    if not isinstance(names, list):
+        raise InputError.single(str(state / "preview.json"), 'expected {"views": [names]}')
     previews = [(str(n), read_image(state / "preview" / f"{i}.png")) for i, n in enumerate(names)]
-    record = json.loads((run / "run.json").read_text(encoding="utf-8"))
-    return SavedRun(trained, semantic, vocabulary, previews, record)
+    return SavedRun(trained, semantic, vocabulary, previews, _record(run))
+
+
+def _record(run: Path) -> dict[str, Any]:
+    """``run.json`` as a dict (an InputError naming it otherwise)."""
+    record = load_json(run / "run.json", str(run / "run.json"))
+    if not isinstance(record, dict):
+        raise InputError.single(str(run / "run.json"), "expected a JSON object")
+    return record
 
 
 def _undistortions(run: Path) -> dict[str, Undistortion]:
     """The frames of a run whose lens distortion was removed (``run.json``), by name."""
-    return of_record(json.loads((run / "run.json").read_text(encoding="utf-8")))
+    return of_record(_record(run))
 
 
 def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = None) -> Labels:
@@ -256,11 +266,12 @@ def load_labels(run: Path, names: Sequence[str], size: tuple[int, int] | None = 
     written onto distorted images (``run.json`` ``capture.undistortion``) undistorted first.
     """
     path = run / "scene_labelled.ply"
+    ply = open_ply(path, str(path))
     try:
-        vertex = PlyData.read(str(path))["vertex"]
+        vertex = ply["vertex"]
         semantic_ids = np.asarray(vertex["semantic_id"], dtype=np.int64)
         one_based = np.asarray(vertex["instance_id"], dtype=np.int64)
-    except (OSError, ValueError, KeyError) as error:
+    except (ValueError, KeyError) as error:
         raise InputError.single(str(path), f"cannot read semantic_id: {error}") from None
     maps = {n: read_image(run / "labels" / f"{n}.png").astype(np.int32) - 1 for n in names}
     undistorted = _undistortions(run)

@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from dcseg.affinity.data import AffinityResult
 from dcseg.blend import BlendWeights
 from dcseg.errors import InputError
+from dcseg.io.captures.jsonfields import JsonFields, load_json
 from dcseg.io.folders import link_or_copy
 from dcseg.io.npz import read_stored
 
@@ -254,30 +255,51 @@ def save_views(folder: Path, views: Sequence[ViewState]) -> None:
 def load_views(folder: Path, memory: BlendMemory | None = None) -> list[ViewState]:
     """Read what :func:`save_views` wrote (the weights are read on use, kept in ``memory``)."""
     path = folder / "views.json"
-    try:
-        body = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as error:
-        raise InputError.single(str(path), f"cannot read the run's views: {error}") from None
-    if body.get("version") not in READABLE_VERSIONS:
+    fields = JsonFields(str(path))
+    body = fields.mapping(load_json(path, str(path)), "")
+    if body is not None and body.get("version") not in READABLE_VERSIONS:
         raise InputError.single(str(path), f"unsupported state version {body.get('version')}")
-    return [_load_view(folder, i, meta, memory) for i, meta in enumerate(body["views"])]
+    metas = fields.array(fields.get(body, "views", ""), "views") if body is not None else None
+    fields.raise_if_any()
+    assert metas is not None
+    views = [_load_view(folder, i, meta, memory, fields) for i, meta in enumerate(metas)]
+    fields.raise_if_any()
+    return [view for view in views if view is not None]
 
 
 def _load_view(
-    folder: Path, index: int, meta: dict[str, Any], memory: BlendMemory | None
-) -> ViewState:
+    folder: Path, index: int, item: Any, memory: BlendMemory | None, fields: JsonFields
+) -> ViewState | None:
+    """The view ``views[index]`` describes, or None with its problems added to ``fields``."""
+    where = f"views[{index}]"
+    meta = fields.mapping(item, where)
+    if meta is None:
+        return None
+    name = fields.string(meta, "name", where)
+    width, height = fields.integer(meta, "width", where), fields.integer(meta, "height", where)
+    c2w = fields.matrix4(meta, "c2w", where)
+    k = _matrix3(fields, meta, where)
     path = folder / "views" / f"{index}.npz"
     if not path.is_file():
         raise InputError.single(str(path), "the view's cached weights are missing")
-    return ViewState(
-        name=str(meta["name"]),
-        K=np.asarray(meta["K"], dtype=np.float64),
-        c2w=np.asarray(meta["c2w"], dtype=np.float64),
-        width=int(meta["width"]),
-        height=int(meta["height"]),
-        source=path,
-        memory=memory,
-    )
+    if name is None or width is None or height is None or c2w is None or k is None:
+        return None
+    return ViewState(name, k, c2w, width, height, source=path, memory=memory)
+
+
+def _matrix3(fields: JsonFields, meta: dict[str, Any], where: str) -> NDArray[np.float64] | None:
+    """``meta["K"]``: 3 rows of 3 finite numbers."""
+    value = fields.get(meta, "K", where)
+    if value is None:
+        return None
+    try:
+        k = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        k = np.zeros(0)
+    if k.shape != (3, 3) or not np.isfinite(k).all():
+        fields.add(f"{where}.K", "must be 3 rows of 3 finite numbers")
+        return None
+    return k
 
 
 def _read_blend(path: Path, width: int, height: int) -> BlendWeights:

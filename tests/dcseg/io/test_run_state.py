@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -168,4 +169,32 @@ def test_a_missing_view_file_is_named(tmp_path: Path) -> None:
     save_version_1(tmp_path, blend_of(), depth_of())
     (tmp_path / "views" / "0.npz").unlink()
     with pytest.raises(InputError, match=r"0\.npz.*missing"):
+        load_views(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda meta: meta.update(K={"a": 1}), "views[0].K: must be 3 rows of 3 finite numbers"),
+        (lambda meta: meta["c2w"][1].__setitem__(3, "x"), "views[0].c2w: must be a 4x4 array"),
+        (lambda meta: meta.pop("name"), "views[0].name: missing"),
+        (lambda meta: meta.update(width=None), "views[0].width: must not be null"),
+    ],
+)
+def test_a_damaged_views_json_is_named(tmp_path: Path, change: Any, message: str) -> None:
+    save_views(
+        tmp_path, [write_view(tmp_path / "c" / "0.npz", "f0", K, POSE, blend_of(), depth_of())]
+    )
+    path = tmp_path / "views.json"
+    body = json.loads(path.read_text())
+    change(body["views"][0])
+    path.write_text(json.dumps(body))
+    with pytest.raises(InputError) as info:
+        load_views(tmp_path)
+    assert str(info.value).startswith(f"{path}: {message}")
+
+
+def test_views_json_that_is_not_json_is_named(tmp_path: Path) -> None:
+    (tmp_path / "views.json").write_bytes(b'{"version": 2, "views": [\xff')
+    with pytest.raises(InputError, match=r"views\.json: not UTF-8 text"):
         load_views(tmp_path)

@@ -278,28 +278,13 @@ def _load_view(
     name = fields.string(meta, "name", where)
     width, height = fields.integer(meta, "width", where), fields.integer(meta, "height", where)
     c2w = fields.matrix4(meta, "c2w", where)
-    k = _matrix3(fields, meta, where)
+    k = fields.matrix3(meta, "K", where)
     path = folder / "views" / f"{index}.npz"
     if not path.is_file():
         raise InputError.single(str(path), "the view's cached weights are missing")
     if name is None or width is None or height is None or c2w is None or k is None:
         return None
     return ViewState(name, k, c2w, width, height, source=path, memory=memory)
-
-
-def _matrix3(fields: JsonFields, meta: dict[str, Any], where: str) -> NDArray[np.float64] | None:
-    """``meta["K"]``: 3 rows of 3 finite numbers."""
-    value = fields.get(meta, "K", where)
-    if value is None:
-        return None
-    try:
-        k = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        k = np.zeros(0)
-    if k.shape != (3, 3) or not np.isfinite(k).all():
-        fields.add(f"{where}.K", "must be 3 rows of 3 finite numbers")
-        return None
-    return k
 
 
 def _read_blend(path: Path, width: int, height: int) -> BlendWeights:

@@ -127,15 +127,21 @@ class JsonFields:
             return None
         return value
 
+    def matrix3(self, obj: dict[str, Any], key: str, where: str) -> NDArray[np.float64] | None:
+        """A 3x3 matrix (intrinsics) given as 3 rows of 3 finite numbers."""
+        matrix = self._numbers(obj, key, where)
+        if matrix is None:
+            return None
+        if matrix.shape != (3, 3) or not np.isfinite(matrix).all():
+            self.add(join(where, key), "must be a 3x3 array of finite numbers (rows of 3)")
+            return None
+        return matrix
+
     def matrix4(self, obj: dict[str, Any], key: str, where: str) -> NDArray[np.float64] | None:
         """A 4x4 matrix given as 4 rows of 4 finite numbers (3 rows: ``[0 0 0 1]`` is added)."""
-        value = self.get(obj, key, where)
-        if value is None:
+        matrix = self._numbers(obj, key, where)
+        if matrix is None:
             return None
-        try:
-            matrix = np.array(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            matrix = np.zeros(0)
         if matrix.shape == (3, 4):
             matrix = np.vstack([matrix, [0.0, 0.0, 0.0, 1.0]])
         if matrix.shape != (4, 4):
@@ -145,6 +151,17 @@ class JsonFields:
             self.add(join(where, key), "must hold finite numbers (no NaN or infinity)")
             return None
         return matrix
+
+    def _numbers(self, obj: dict[str, Any], key: str, where: str) -> NDArray[np.float64] | None:
+        """``obj[key]`` as a float array (empty when it is not nested lists of numbers); None
+        when absent or null (recorded by :meth:`get`)."""
+        value = self.get(obj, key, where)
+        if value is None:
+            return None
+        try:
+            return np.array(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            return np.zeros(0)
 
     def relative_file(self, root: Path, value: str | None, where: str) -> Path | None:
         """``root / value`` when ``value`` is a relative path staying inside ``root``."""

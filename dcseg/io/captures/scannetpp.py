@@ -25,8 +25,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from dcseg.config import CaptureOptions
 from dcseg.errors import InputError, Problem
 from dcseg.io.captures.common import (
@@ -62,15 +60,8 @@ def matches(root: Path) -> bool:
 
 
 def _intrinsics(fields: JsonFields, entry: dict[str, Any], name: str, shown: str) -> Camera | None:
-    value = fields.get(entry, "intrinsic", name)
-    if value is None:
-        return None
-    try:
-        k = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        k = np.zeros(0)
-    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
-        fields.add(f"{name}.intrinsic", "must be a 3x3 array of finite numbers (rows of 3)")
+    k = fields.matrix3(entry, "intrinsic", name)
+    if k is None:
         return None
     return Camera(k[0, 0], k[1, 1], k[0, 2], k[1, 2], None, f"{shown}:{name}.intrinsic")
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import random
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import cv2
@@ -72,6 +72,22 @@ CAPTURES: dict[str, Write] = {
 }
 
 
+def damaged_copies(
+    base: Path, files: list[Path], seed: str, tmp_path: Path
+) -> Iterator[tuple[Path, str]]:
+    """``MUTATIONS`` copies of ``base``, each with one of ``files`` damaged (seeded by
+    ``seed``), as ``(copy, what was damaged)``; each copy is removed once used."""
+    rng = random.Random(seed)
+    for i in range(MUTATIONS):
+        work = tmp_path / f"m{i}"
+        shutil.copytree(base, work)
+        file = work / rng.choice(files).relative_to(base)
+        done, data = mutate(file.read_bytes(), rng)
+        file.write_bytes(data)
+        yield work, f"{file.relative_to(work)}: {done}"
+        shutil.rmtree(work)
+
+
 def metadata_files(root: Path) -> list[Path]:
     """What a layout holds besides images (those have their own decoding tests)."""
     return sorted(p for p in root.rglob("*") if p.is_file() and p.suffix.lower() not in IMAGES)
@@ -103,15 +119,7 @@ def test_damaged_capture_is_named_or_read_soundly(layout: str, tmp_path: Path) -
     CAPTURES[layout](scene, base)
     target = base / "scene.sens" if layout == "sens" else base
     assert not unsound(read_capture(target, options))
-    files = metadata_files(base)
-    rng = random.Random(layout)
-    for i in range(MUTATIONS):
-        work = tmp_path / f"m{i}"
-        shutil.copytree(base, work)
-        file = work / rng.choice(files).relative_to(base)
-        done, data = mutate(file.read_bytes(), rng)
-        file.write_bytes(data)
-        where = f"{file.relative_to(work)}: {done}"
+    for work, where in damaged_copies(base, metadata_files(base), layout, tmp_path):
         try:
             capture = read_capture(work / target.relative_to(base), options)
         except InputError:
@@ -120,7 +128,6 @@ def test_damaged_capture_is_named_or_read_soundly(layout: str, tmp_path: Path) -
             pytest.fail(f"{where}: {type(error).__name__}: {error}")
         else:
             assert not unsound(capture), where
-        shutil.rmtree(work)
 
 
 def _coco(folder: Path) -> None:
@@ -169,12 +176,5 @@ def test_damaged_mask_files_are_named(kind: str, tmp_path: Path) -> None:
     MASKS[kind](base)
     _read_both(base, "unchanged")
     files = sorted(p for p in base.rglob("*") if p.is_file())
-    rng = random.Random(kind)
-    for i in range(MUTATIONS):
-        work = tmp_path / f"m{i}"
-        shutil.copytree(base, work)
-        file = work / rng.choice(files).relative_to(base)
-        done, data = mutate(file.read_bytes(), rng)
-        file.write_bytes(data)
-        _read_both(work, f"{file.relative_to(work)}: {done}")
-        shutil.rmtree(work)
+    for work, where in damaged_copies(base, files, kind, tmp_path):
+        _read_both(work, where)

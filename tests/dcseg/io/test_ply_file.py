@@ -44,14 +44,17 @@ def test_vertex_count_the_file_cannot_hold_is_refused(tmp_path: Path, text: bool
     )
 
 
-def test_scene_ply_with_an_inflated_count_is_refused(tmp_path: Path) -> None:
-    n = 5
-    gaussians = Gaussians(
+def flat_gaussians(n: int) -> Gaussians:
+    """``n`` unit Gaussians at the origin (what a PLY test needs to write)."""
+    return Gaussians(
         torch.zeros(n, 3), torch.tensor([[1.0, 0, 0, 0]] * n), torch.zeros(n, 3), torch.zeros(n),
         torch.zeros(n, 1, 3),
     )  # fmt: skip
+
+
+def test_scene_ply_with_an_inflated_count_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "scene.ply"
-    write_gaussians_ply(path, gaussians)
+    write_gaussians_ply(path, flat_gaussians(5))
     replace_once(path, b"element vertex 5", b"element vertex 4000000000")
     with pytest.raises(InputError, match="its header declares rows of at least"):
         read_gaussians_ply(path)

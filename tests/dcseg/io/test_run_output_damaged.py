@@ -6,24 +6,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from dcseg.errors import InputError
-from dcseg.gaussians import Gaussians
 from dcseg.io.ply import write_gaussians_ply
 from dcseg.io.run_output import load_labels
+from tests.dcseg.io.test_ply_file import flat_gaussians
 
 
 def labelled_run(run: Path) -> Path:
-    n = 4
-    gaussians = Gaussians(
-        torch.zeros(n, 3), torch.tensor([[1.0, 0, 0, 0]] * n), torch.zeros(n, 3), torch.zeros(n),
-        torch.zeros(n, 1, 3),
-    )  # fmt: skip
-    ids = np.arange(n, dtype=np.int32)
+    ids = np.arange(4, dtype=np.int32)
     run.mkdir()
     extra = {"instance_id": ids, "semantic_id": ids, "cluster_id": ids}
-    write_gaussians_ply(run / "scene_labelled.ply", gaussians, extra=extra)
+    write_gaussians_ply(run / "scene_labelled.ply", flat_gaussians(4), extra=extra)
     (run / "run.json").write_text("{}")
     return run
 

@@ -175,7 +175,7 @@ def test_a_missing_view_file_is_named(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda meta: meta.update(K={"a": 1}), "views[0].K: must be 3 rows of 3 finite numbers"),
+        (lambda meta: meta.update(K={"a": 1}), "views[0].K: must be a 3x3 array of finite"),
         (lambda meta: meta["c2w"][1].__setitem__(3, "x"), "views[0].c2w: must be a 4x4 array"),
         (lambda meta: meta.pop("name"), "views[0].name: missing"),
         (lambda meta: meta.update(width=None), "views[0].width: must not be null"),

@@ -13,7 +13,7 @@ from __future__ import annotations
 import tokenize
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 from numpy.lib import format as npy_format
@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from dcseg.errors import InputError
 from dcseg.io.images import MAX_PIXELS, charge_pixels
 
-__all__ = ["NUMPY_FILE_ERRORS", "read_npy_map"]
+__all__ = ["NUMPY_FILE_ERRORS", "npy_file_header", "npy_header", "read_npy_map"]
 
 NUMPY_FILE_ERRORS: tuple[type[Exception], ...] = (
     OSError,
@@ -44,7 +44,7 @@ def read_npy_map(path: Path, shown: str) -> NDArray[Any]:
             :data:`~dcseg.io.images.MAX_PIXELS` or the current pixel budget allows.
     """
     try:
-        shape = _shape(path)
+        shape, _ = npy_file_header(path)
     except NUMPY_FILE_ERRORS as err:
         raise InputError.single(shown, f"cannot read .npy array: {err}") from err
     size = int(np.prod(shape, dtype=np.int64))
@@ -58,12 +58,18 @@ def read_npy_map(path: Path, shown: str) -> NDArray[Any]:
         raise InputError.single(shown, f"cannot read .npy array: {err}") from err
 
 
-def _shape(path: Path) -> tuple[int, ...]:
-    """The shape in an ``.npy`` header (format 1.0, 2.0 or 3.0), nothing else read."""
+def npy_header(handle: IO[bytes]) -> tuple[tuple[int, ...], np.dtype[Any]]:
+    """Shape and dtype from the ``.npy`` header at ``handle``'s position (format 1.0, 2.0 or
+    3.0; an ``.npz`` member works too), nothing else read."""
+    version = npy_format.read_magic(handle)
+    read = (
+        npy_format.read_array_header_1_0 if version == (1, 0) else npy_format.read_array_header_2_0
+    )
+    shape, _, dtype = read(handle)
+    return tuple(int(v) for v in shape), np.dtype(dtype)
+
+
+def npy_file_header(path: Path) -> tuple[tuple[int, ...], np.dtype[Any]]:
+    """:func:`npy_header` of an ``.npy`` file."""
     with path.open("rb") as handle:
-        version = npy_format.read_magic(handle)
-        if version == (1, 0):
-            shape, _, _ = npy_format.read_array_header_1_0(handle)
-        else:
-            shape, _, _ = npy_format.read_array_header_2_0(handle)
-    return tuple(int(v) for v in shape)
+        return npy_header(handle)

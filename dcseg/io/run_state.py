@@ -257,9 +257,11 @@ def load_views(folder: Path, memory: BlendMemory | None = None) -> list[ViewStat
     path = folder / "views.json"
     fields = JsonFields(str(path))
     body = fields.mapping(load_json(path, str(path)), "")
-    if body is not None and body.get("version") not in READABLE_VERSIONS:
+    fields.raise_if_any()
+    assert body is not None
+    if body.get("version") not in READABLE_VERSIONS:
         raise InputError.single(str(path), f"unsupported state version {body.get('version')}")
-    metas = fields.array(fields.get(body, "views", ""), "views") if body is not None else None
+    metas = fields.array(fields.get(body, "views", ""), "views")
     fields.raise_if_any()
     assert metas is not None
     views = [_load_view(folder, i, meta, memory, fields) for i, meta in enumerate(metas)]

@@ -20,7 +20,7 @@ from dcseg.errors import InputError
 from dcseg.io.images import MAX_PIXELS, charge_pixels, display_path
 from dcseg.io.mask_formats.rle import RLE, encode
 from dcseg.io.mask_formats.scores import NPZ_SCORE_KEYS, MinScores
-from dcseg.io.npy import NUMPY_FILE_ERRORS
+from dcseg.io.npy import NUMPY_FILE_ERRORS, npy_file_header, npy_header
 from dcseg.types import AgnosticMasks
 
 __all__ = ["is_stack", "read_stack", "stack_pixels"]
@@ -34,7 +34,7 @@ def is_stack(path: Path) -> bool:
     if path.suffix.lower() == ".npz":
         return True
     try:
-        return int(np.load(path, mmap_mode="r", allow_pickle=False).ndim) in (3, 4)
+        return len(npy_file_header(path)[0]) in (3, 4)
     except NUMPY_FILE_ERRORS:
         return False
 
@@ -93,22 +93,14 @@ def _checked_shape(shape: tuple[int, ...], dtype: np.dtype[Any], shown: str) -> 
 def _header(path: Path, shown: str) -> tuple[tuple[int, ...], np.dtype[Any]]:
     """Shape and dtype of the stack, from the ``.npy`` header (inside the ``.npz`` zip)."""
     if path.suffix.lower() == ".npy":
-        array = np.load(path, mmap_mode="r", allow_pickle=False)
-        return tuple(int(v) for v in array.shape), array.dtype
+        return npy_file_header(path)
     with zipfile.ZipFile(path) as archive:
         names = [n.removesuffix(".npy") for n in archive.namelist()]
         if "masks" not in names:
             found = ", ".join(names) or "none"
             raise InputError.single(shown, f"expected a 'masks' array (found: {found})")
         with archive.open("masks.npy") as member:
-            version = np.lib.format.read_magic(member)
-            read = (
-                np.lib.format.read_array_header_1_0
-                if version == (1, 0)
-                else np.lib.format.read_array_header_2_0
-            )
-            shape, _, dtype = read(member)
-    return tuple(int(v) for v in shape), np.dtype(dtype)
+            return npy_header(member)
 
 
 def _load(path: Path, shown: str) -> tuple[NDArray[Any], dict[str, NDArray[Any]]]:

@@ -180,7 +180,9 @@ def test_killed_worker_job_resumes_after_last_finished_stage(
             job = client.get(f"/v1/jobs/{job_id}", headers=AUTH_A).json()
             return "step" in (job["progress"]["message"] or "")
 
-        wait_for(training, timeout=60, every=0.2)
+        # generous: under a full test run the worker's start-up (imports, kernel cache) can
+        # take most of a minute; the condition is polled, so a quick start is not slowed
+        wait_for(training, timeout=180, every=0.2)
         first.kill()
         first.wait(10)
         start_worker()
@@ -291,7 +293,7 @@ def test_sigterm_interrupts_the_celery_job_and_the_next_worker_resumes_it(
             assert first.poll() is None, first_log.read_text()
             return "slow: step" in (_job(store, job_id).message or "")
 
-        wait_for(slow_running, timeout=60, every=0.1)
+        wait_for(slow_running, timeout=180, every=0.1)  # the worker starts slowly under load
         first.send_signal(signal.SIGTERM)
         try:  # 1000 steps take 100 s; the interrupted job ends at its next step
             first.wait(60)

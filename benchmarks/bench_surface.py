@@ -6,7 +6,9 @@
 ``dcseg synth`` bundle it was made from (its ``gt/points.ply`` samples the true surfaces). Per
 run: the opaque Gaussians' (opacity > 0.5) centre distance to the surface
 (:func:`dcseg.evaluate.surface.surface_report`: median, 90th percentile, mean, share within
-1 cm) and, when the run's ``run.json`` has them, the held-out PSNR and depth MAE.
+1 cm), the coverage gap (:func:`dcseg.evaluate.surface.coverage`: the share of true-surface
+points with no opaque centre within 5 cm) and, when the run's ``run.json`` or
+``reconstruction.json`` has them, the held-out PSNR and depth MAE.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from typing import Any
 import numpy as np
 from plyfile import PlyData
 
-from dcseg.evaluate.surface import surface_report
+from dcseg.evaluate.surface import coverage, surface_report
 from dcseg.io.ply import read_gaussians_ply
 
 
@@ -28,8 +30,11 @@ def measure(run: Path, scene: Path) -> dict[str, Any]:
     g = read_gaussians_ply(run / "scene.ply")
     vertex = PlyData.read(str(scene / "gt" / "points.ply"))["vertex"]
     surface = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1)
-    report = surface_report(g.means.detach().numpy(), g.opacities().detach().numpy(), surface)
+    means, opacities = g.means.detach().numpy(), g.opacities().detach().numpy()
+    report = surface_report(means, opacities, surface)
     row: dict[str, Any] = {"run": str(run), "gaussians": len(g), **report}
+    gap = coverage(means, opacities, surface)
+    row["coverage_gap"], row["median_to_centre"] = gap["gap"], gap["median_to_centre"]
     record, alone = run / "run.json", run / "reconstruction.json"
     rec: dict[str, Any] = {}
     if record.is_file():

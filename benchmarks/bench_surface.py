@@ -5,10 +5,10 @@
 ``RUN`` is a finished run (its ``scene.ply``) or a reconstruction folder; ``SCENE`` the
 ``dcseg synth`` bundle it was made from (its ``gt/points.ply`` samples the true surfaces). Per
 run: the opaque Gaussians' (opacity > 0.5) centre distance to the surface
-(:func:`dcseg.evaluate.surface.surface_report`: median, 90th percentile, mean, share within
-1 cm), the coverage gap (:func:`dcseg.evaluate.surface.coverage`: the share of true-surface
-points with no opaque centre within 5 cm) and, when the run's ``run.json`` or
-``reconstruction.json`` has them, the held-out PSNR and depth MAE.
+(:func:`dcseg.evaluate.surface.geometry_report`: median, 90th percentile, mean, share within
+1 cm), the coverage gap (the share of true-surface points with no opaque centre within 5 cm)
+and, when the run's ``run.json`` or ``reconstruction.json`` has them, the held-out PSNR and
+depth MAE.
 """
 
 from __future__ import annotations
@@ -19,22 +19,18 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from plyfile import PlyData
-
-from dcseg.evaluate.surface import coverage, surface_report
+from dcseg.evaluate.surface import geometry_report
+from dcseg.io.ground_truth import read_ground_truth_points
 from dcseg.io.ply import read_gaussians_ply
 
 
 def measure(run: Path, scene: Path) -> dict[str, Any]:
     g = read_gaussians_ply(run / "scene.ply")
-    vertex = PlyData.read(str(scene / "gt" / "points.ply"))["vertex"]
-    surface = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1)
-    means, opacities = g.means.detach().numpy(), g.opacities().detach().numpy()
-    report = surface_report(means, opacities, surface)
-    row: dict[str, Any] = {"run": str(run), "gaussians": len(g), **report}
-    gap = coverage(means, opacities, surface)
-    row["coverage_gap"], row["median_to_centre"] = gap["gap"], gap["median_to_centre"]
+    surface = read_ground_truth_points(scene / "gt" / "points.ply")
+    report = geometry_report(g.means.detach().numpy(), g.opacities().detach().numpy(), surface)
+    row: dict[str, Any] = {"run": str(run), "gaussians": len(g), **report["centre_to_surface"]}
+    row["coverage_gap"] = report["coverage"]["gap"]
+    row["median_to_centre"] = report["coverage"]["median_to_centre"]
     record, alone = run / "run.json", run / "reconstruction.json"
     rec: dict[str, Any] = {}
     if record.is_file():

@@ -82,6 +82,9 @@ def _command(weed: str, data: Path, config: Path) -> list[str]:
     return command
 
 
+WEED_STOP_GRACE_S = 2.0
+
+
 class S3Unavailable(Exception):
     """The ``weed`` binary is missing, cannot run here, or its server did not start."""
 
@@ -144,7 +147,9 @@ def weed_server(root: Path) -> Iterator[S3Server]:
             _wait_ready(server, process, log)
             yield server
         finally:
-            stop_process(process, signal.SIGTERM, 15)
+            # weed's graceful shutdown waits on its own filer's gRPC socket and does not end
+            # within 20 s of SIGTERM or SIGINT; its data is a temporary folder: kill it soon
+            stop_process(process, signal.SIGTERM, WEED_STOP_GRACE_S)
 
 
 @pytest.fixture(scope="session")

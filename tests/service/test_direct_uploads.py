@@ -13,7 +13,7 @@ import pytest
 
 from jobstore.s3 import S3Storage
 from service.main import create_app
-from tests.s3server import S3Server, s3_server, s3_settings  # noqa: F401 (fixture)
+from tests.s3server import S3Server, s3_settings
 from tests.service.conftest import AUTH_A, TestClient, assert_problem, make_settings, state_of
 
 pytestmark = pytest.mark.integration
@@ -22,7 +22,7 @@ MIB = 2**20
 
 
 @pytest.fixture
-def client(s3_server: S3Server, tmp_path: Path) -> Iterator[TestClient]:  # noqa: F811
+def client(s3_server: S3Server, tmp_path: Path) -> Iterator[TestClient]:
     settings = s3_settings(
         s3_server, tmp_path, max_upload_bytes=16 * MIB, direct_upload_part_bytes=5 * MIB
     )

@@ -18,7 +18,7 @@ from jobstore.s3 import S3Storage
 from jobstore.settings import Settings
 from service.exports import cache_root
 from service.main import create_app
-from tests.s3server import S3Server, s3_server, s3_settings  # noqa: F401 (fixture)
+from tests.s3server import S3Server, s3_settings
 from tests.scenes.runs import make_run
 from tests.service.conftest import AUTH_A, AUTH_B, TAR, TestClient, assert_problem, state_of
 from tests.service.segmented import run_segmented_job
@@ -50,7 +50,7 @@ PAYLOAD = bytes(range(256)) * 64
 
 
 @pytest.fixture
-def s3(s3_server: S3Server, tmp_path: Path) -> Settings:  # noqa: F811
+def s3(s3_server: S3Server, tmp_path: Path) -> Settings:
     settings: Settings = s3_settings(s3_server, tmp_path)
     return settings
 
@@ -127,7 +127,7 @@ def test_artifacts_proxied_with_range_and_etag_and_presigned(client, scene_tar):
     assert client.get(f"/v1/jobs/{job_id}/artifacts", headers=AUTH_B).status_code == 404
 
 
-def test_presigned_urls_expire(s3_server, tmp_path, scene_tar):  # noqa: F811
+def test_presigned_urls_expire(s3_server, tmp_path, scene_tar):
     settings = s3_settings(s3_server, tmp_path, presign_expiry_s=1)
     with TestClient(create_app(settings)) as client:
         job_id = _run_job(client, scene_tar)
@@ -159,7 +159,7 @@ def test_deleting_removes_objects_and_quota_counts_the_bucket(client, scene_tar,
     assert storage.tenant_bytes(state.store, "tenant-a") == 0
 
 
-def test_quota_from_the_bucket_refuses_uploads(s3_server, tmp_path, scene_tar):  # noqa: F811
+def test_quota_from_the_bucket_refuses_uploads(s3_server, tmp_path, scene_tar):
     settings = s3_settings(s3_server, tmp_path, tenant_storage_quota_bytes=len(scene_tar) + 10)
     with TestClient(create_app(settings)) as client:
         first = client.post("/v1/uploads", content=scene_tar, headers={**AUTH_A, **TAR})
@@ -235,7 +235,7 @@ class _Recording(httpx.BaseTransport):
 
 @pytest.mark.parametrize("expiry_s", [300, 1])
 def test_the_client_follows_presigned_urls_and_falls_back(
-    s3_server,  # noqa: F811
+    s3_server,
     tmp_path,
     scene_tar,
     expiry_s,

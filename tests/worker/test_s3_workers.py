@@ -26,7 +26,7 @@ import pytest
 
 from jobstore.s3 import S3Storage
 from service.main import create_app
-from tests.s3server import S3Server, s3_server, s3_settings  # noqa: F401 (fixture)
+from tests.s3server import S3Server, s3_settings
 from tests.service.conftest import (
     AUTH_A,
     TAR,
@@ -49,7 +49,7 @@ HEARTBEAT_S = 2.0
 
 @pytest.fixture
 def stack(
-    s3_server: S3Server,  # noqa: F811
+    s3_server: S3Server,
     postgres_server: str,  # noqa: F811
     tmp_path: Path,
 ) -> Iterator[tuple[Any, dict[str, str]]]:

@@ -105,7 +105,8 @@ def run(dump: Path, argv: list[str]) -> int:
         setattr(stage, OBSERVED, seen)
 
 
-def _edges(truth: NDArray[Any]) -> NDArray[np.bool_]:
+def depth_edges(truth: NDArray[Any]) -> NDArray[np.bool_]:
+    """Pixels whose 5x5 window of sensor depth ranges more than :data:`EDGE_RANGE`."""
     valid = truth > 0
     high = ndimage.maximum_filter(np.where(valid, truth, 0.0), 5)
     low = ndimage.minimum_filter(np.where(valid, truth, np.inf), 5)
@@ -158,7 +159,7 @@ def summarise(dump: Path) -> dict[str, Any]:
                 )
         valid = truth > 0
         errors.append(np.abs(rendered - truth)[valid])
-        edges.append(_edges(truth)[valid])
+        edges.append(depth_edges(truth)[valid])
         depths.append(truth[valid])
         d0, d1, dx, dy = _best_shift(rendered, truth, _depth_cost)
         c0, c1, cx, cy = _best_shift(saved["render"], saved["image"], _colour_cost)

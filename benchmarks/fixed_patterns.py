@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmarks.held_out_errors import depth_edges
+from benchmarks.held_out_errors import depth_edges, write_entry
 
 Array = NDArray[np.float64]
 
@@ -177,9 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(json.dumps(report, indent=1))
     if args.out:
-        results = json.loads(args.out.read_text()) if args.out.exists() else {}
-        results[args.name] = report
-        args.out.write_text(json.dumps(results, indent=1) + "\n")
+        write_entry(args.out, args.name, report)
     return 0
 
 

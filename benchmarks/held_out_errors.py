@@ -248,10 +248,16 @@ def main(argv: list[str] | None = None) -> int:
     summary = {k: v for k, v in report.items() if k != "per_view"}
     print(json.dumps(summary, indent=1))
     if parsed.out:
-        results = json.loads(parsed.out.read_text()) if parsed.out.exists() else {}
-        results[parsed.name] = report
-        parsed.out.write_text(json.dumps(results, indent=1) + "\n")
+        write_entry(parsed.out, parsed.name, report)
     return 0
+
+
+def write_entry(out: Path, name: str, report: dict[str, Any]) -> None:
+    """Store ``report`` as the entry ``name`` of the JSON results file ``out`` (kept entries
+    of other names)."""
+    results = json.loads(out.read_text()) if out.exists() else {}
+    results[name] = report
+    out.write_text(json.dumps(results, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -6,12 +6,12 @@ import os
 
 import pytest
 
-# One SeaweedFS server for the whole session: a fixture imported into each test module would be
-# one definition, and one server, per module.
-from tests.s3server import s3_server  # noqa: F401 (fixture)
-
 # Before torch or numba load: passive OpenMP waits keep their thread pools from fighting.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+# One SeaweedFS server for the whole session: a fixture imported into each test module would be
+# one definition, and one server, per module. (Imported after the setting above.)
+from tests.s3server import s3_server  # noqa: E402, F401 (fixture)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmarks.held_out_errors import depth_edges, write_entry
+from benchmarks.entries import write_entry
+from benchmarks.held_out_errors import depth_edges
 
 Array = NDArray[np.float64]
 
@@ -42,6 +43,9 @@ FIT_RANGE = 0.2
 
 REACH = 6
 """Largest shift (pixels) searched per cell; also the border left out of the colour score."""
+
+SHIFTS = [(dx, dy) for dy in range(-REACH, REACH + 1) for dx in range(-REACH, REACH + 1)]
+"""Every whole-pixel shift ``(dx, dy)`` searched per cell."""
 
 
 def _load(dump: Path) -> list[dict[str, Array]]:
@@ -116,25 +120,21 @@ def depth_pattern(views: list[dict[str, Array]], grid: int) -> dict[str, Any]:
 
 
 def _shift_errors(view: dict[str, Array], grid: int) -> Array:
-    """Squared colour error per cell (rows) and shift (columns, :func:`_shifts` order)."""
+    """Squared colour error per cell (rows) and shift (columns, :data:`SHIFTS` order)."""
     render, image = np.clip(view["render"], 0, 1), view["image"]
     h, w = image.shape[:2]
     inner_h, inner_w = h - 2 * REACH, w - 2 * REACH
-    errors = np.zeros((grid * grid, len(_shifts())))
+    errors = np.zeros((grid * grid, len(SHIFTS)))
     for cell in range(grid * grid):
         y0 = REACH + (cell // grid) * inner_h // grid
         y1 = REACH + (cell // grid + 1) * inner_h // grid
         x0 = REACH + (cell % grid) * inner_w // grid
         x1 = REACH + (cell % grid + 1) * inner_w // grid
         core = image[y0:y1, x0:x1]
-        for k, (dx, dy) in enumerate(_shifts()):
+        for k, (dx, dy) in enumerate(SHIFTS):
             moved = render[y0 + dy : y1 + dy, x0 + dx : x1 + dx]
             errors[cell, k] = float(((moved - core) ** 2).sum())
     return errors
-
-
-def _shifts() -> list[tuple[int, int]]:
-    return [(dx, dy) for dy in range(-REACH, REACH + 1) for dx in range(-REACH, REACH + 1)]
 
 
 def colour_pattern(views: list[dict[str, Array]], grid: int) -> dict[str, Any]:
@@ -142,7 +142,7 @@ def colour_pattern(views: list[dict[str, Array]], grid: int) -> dict[str, Any]:
     half, and with each view's own best shift per cell (a bound, not a prediction)."""
     errors = np.stack([_shift_errors(v, grid) for v in views])  # view x cell x shift
     samples = sum(v["image"][REACH:-REACH, REACH:-REACH].size for v in views) / len(views)
-    still = _shifts().index((0, 0))
+    still = SHIFTS.index((0, 0))
     cells = np.arange(grid * grid)
     fixed = np.zeros(len(views))
     for fit, test in _halves(len(views)):

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from benchmarks import neighbour_depth, silhouettes
+from benchmarks.entries import write_entry
 
 EDGE_RANGE = 0.05
 """Metres of sensor depth range in a 5x5 window that make a pixel a depth-edge pixel."""
@@ -250,14 +251,6 @@ def main(argv: list[str] | None = None) -> int:
     if parsed.out:
         write_entry(parsed.out, parsed.name, report)
     return 0
-
-
-def write_entry(out: Path, name: str, report: dict[str, Any]) -> None:
-    """Store ``report`` as the entry ``name`` of the JSON results file ``out`` (kept entries
-    of other names)."""
-    results = json.loads(out.read_text()) if out.exists() else {}
-    results[name] = report
-    out.write_text(json.dumps(results, indent=1) + "\n")
 
 
 if __name__ == "__main__":

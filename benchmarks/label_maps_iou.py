@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from benchmarks.entries import write_entry
 from dcseg.io.folders import frame_of
 
 
@@ -114,9 +115,7 @@ def main() -> None:
     }
     print(json.dumps(result, indent=1))
     if args.out is not None:
-        stored = json.loads(args.out.read_text()) if args.out.exists() else {}
-        stored[args.name] = {"run": str(args.run), "truth": str(args.truth), **result}
-        args.out.write_text(json.dumps(stored, indent=1) + "\n")
+        write_entry(args.out, args.name, {"run": str(args.run), "truth": str(args.truth), **result})
 
 
 if __name__ == "__main__":

@@ -140,10 +140,16 @@ def regroup_rejected(
     pooled evidence supports most, its score that class's share of the pooled evidence; it
     has no IoU votes (``votes`` row 0, ``n_views`` 0). Groups of a stuff class stay noise
     (completion gives them their neighbours' class): at heavy noise they were pieces of
-    tables whose confused evidence said floor, and became 50-Gaussian "floor" regions."""
+    tables whose confused evidence said floor, and became 50-Gaussian "floor" regions.
+    Groups under ``cfg.regroup_min_gaussians`` but of at least
+    ``cfg.regroup_unanimous_gaussians`` join them when their pooled evidence is (nearly)
+    unanimous (share >= ``cfg.regroup_unanimous_share``)."""
     features, means, radius, stuff = geometry
-    groups = rejected_groups(means, origin, evidence, radius, cfg.regroup_min_gaussians)
-    groups = groups.only(~np.isin(groups.classes, stuff))
+    small = cfg.regroup_unanimous_gaussians or cfg.regroup_min_gaussians
+    groups = rejected_groups(means, origin, evidence, radius, min(small, cfg.regroup_min_gaussians))
+    sizes = np.bincount(groups.ids[groups.ids >= 0], minlength=len(groups.classes))
+    big = (sizes >= cfg.regroup_min_gaussians) | (groups.shares >= cfg.regroup_unanimous_share)
+    groups = groups.only(big & ~np.isin(groups.classes, stuff))
     g = len(groups.classes)
     if g == 0:
         return clustering, assignment

@@ -82,6 +82,7 @@ def test_mask_agreement_weighs_evidence_of_labelled_gaussians_only() -> None:
      ("trusted_evidence_weight", -1.0), ("min_cluster_support", 1.5),
      ("min_cluster_support", -0.1), ("support_min_extent", -1.0),
      ("support_min_extent", float("nan")), ("regroup_min_gaussians", -1),
+     ("regroup_unanimous_gaussians", -1), ("regroup_unanimous_share", 1.5),
      ("follow_evidence_ratio", 1.5), ("trusted_follow_ratio", -0.1)],
 )  # fmt: skip
 def test_trust_support_and_regroup_settings_are_checked(field: str, value: float) -> None:

@@ -165,6 +165,31 @@ def test_a_touching_group_that_left_a_cluster_becomes_a_cluster_of_its_own() -> 
         assert dropped.labels.tolist() == noise
 
 
+def test_a_group_under_the_minimum_becomes_a_cluster_when_its_evidence_is_unanimous() -> None:
+    """Gaussians 6-7 are fewer than ``regroup_min_gaussians`` (3): with all their evidence
+    for class 1 (share 1.0 >= ``regroup_unanimous_share``) and at least
+    ``regroup_unanimous_gaussians`` (2) of them they are cluster 2, class 1; with some class-0
+    evidence too (share 0.86), or that minimum off (0) or above them (3), they stay noise."""
+    voted = assignment([0, 1], [[2.0, 0.0], [0.0, 2.0]])
+    cfg = AssignConfig(
+        min_share_ratio=0.5, regroup_min_gaussians=3, regroup_unanimous_gaussians=2,
+        regroup_unanimous_share=0.95,
+    )  # fmt: skip
+    kept, out = drop_inconsistent(evidence(), clustering(), voted, geometry(), cfg)
+    assert kept.labels.tolist() == [0] * 6 + [2] * 2 + [1] * 4
+    assert out.labels.tolist() == [0, 1, 1]
+    mixed = evidence()
+    mixed[6:8, 0] = 0.3
+    noise = [0] * 6 + [-1] * 2 + [1] * 4
+    for ev, change in (
+        (mixed, cfg),
+        (evidence(), replace(cfg, regroup_unanimous_gaussians=0)),
+        (evidence(), replace(cfg, regroup_unanimous_gaussians=3)),
+    ):
+        dropped, _ = drop_inconsistent(ev, clustering(), voted, geometry(), change)
+        assert dropped.labels.tolist() == noise
+
+
 def test_regroup_rejected_appends_groups_after_the_clusters() -> None:
     left = np.where((CLUSTERS == 0) & (np.arange(N) >= 6), -1, CLUSTERS)
     origin = np.where(left == -1, 0, -1)

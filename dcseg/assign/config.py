@@ -123,8 +123,9 @@ class AssignConfig:
             ball Gaussians whose look-alike evidence said bowl became a bowl.
         regroup_unanimous_gaussians: ... and a smaller group of at least this many becomes
             one too when its pooled evidence is (nearly) unanimous: its top class has at least
-            ``regroup_unanimous_share`` of it; 0 = off. A domino lying flat on a tray left the tray's cluster with all of its evidence for domino, stayed noise
-            under 50, and completion from the tray round it gave it the tray's class (detector
+            ``regroup_unanimous_share`` of it; 0 = off. A domino lying flat on a tray left
+            the tray's cluster with all of its evidence for domino, stayed noise under 50,
+            and completion from the tray round it gave it the tray's class (detector
             layout 10, one clustering seed: 7.5 mIoU; 48 Gaussians at a share of 0.945, ring
             Gaussians with the tray's evidence among them). 0 -> 20 at 0.9, 15 held-out layouts,
             24 views, seeds 0/10 (``benchmarks/results/regroup_unanimous.json``): 3D labels /

@@ -145,8 +145,10 @@ def regroup_rejected(
     ``cfg.regroup_unanimous_gaussians`` join them when their pooled evidence is (nearly)
     unanimous (share >= ``cfg.regroup_unanimous_share``)."""
     features, means, radius, stuff = geometry
-    small = cfg.regroup_unanimous_gaussians or cfg.regroup_min_gaussians
-    groups = rejected_groups(means, origin, evidence, radius, min(small, cfg.regroup_min_gaussians))
+    least = cfg.regroup_min_gaussians
+    if cfg.regroup_unanimous_gaussians > 0:
+        least = min(least, cfg.regroup_unanimous_gaussians)
+    groups = rejected_groups(means, origin, evidence, radius, least)
     sizes = np.bincount(groups.ids[groups.ids >= 0], minlength=len(groups.classes))
     big = (sizes >= cfg.regroup_min_gaussians) | (groups.shares >= cfg.regroup_unanimous_share)
     groups = groups.only(big & ~np.isin(groups.classes, stuff))

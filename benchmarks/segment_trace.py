@@ -25,12 +25,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from benchmarks.bench_segment import current_config, run_dir
+from benchmarks.bench_segment import PROTOCOL, current_config, run_dir
 from dcseg.affinity import gated_features
 from dcseg.assign.stage import Assignment, assign_labels
 from dcseg.cluster.features import Clustering, as_numpy
 from dcseg.cluster.stage import cluster_features
 from dcseg.config import PipelineConfig
+from dcseg.evaluate.points import transfer_opaque
 from dcseg.io.ground_truth import read_ground_truth
 from dcseg.io.run_output import SavedRun, load_run
 from dcseg.pipeline import segment_scene
@@ -39,34 +40,26 @@ from dcseg.segment import EvidenceSum
 from dcseg.segment.views import cluster_maps
 from dcseg.types import GroundTruth
 
-MIN_OPACITY = 0.05
-"""Opacity above which a Gaussian can stand for a point (the 3D protocol's)."""
-
-MAX_DISTANCE = 0.05
-"""Metres within which it must lie (the 3D protocol's)."""
-
 
 def object_gaussians(
     means: NDArray[np.float64], opacities: NDArray[np.float64], points: NDArray[np.float64]
 ) -> NDArray[np.int64]:
-    """Sorted unique indices of the nearest opaque Gaussian of each of ``points``
-    (:data:`MIN_OPACITY`, within :data:`MAX_DISTANCE`)."""
-    opaque = np.flatnonzero(opacities > MIN_OPACITY)
-    if not len(opaque) or not len(points):
-        return np.zeros(0, dtype=np.int64)
-    gap, index = cKDTree(means[opaque]).query(points)
-    return np.unique(opaque[index[gap < MAX_DISTANCE]]).astype(np.int64)
+    """Sorted unique indices of the Gaussians that stand for ``points`` under the 3D
+    protocol (:func:`dcseg.evaluate.points.transfer_opaque`: the nearest opaque one)."""
+    index = transfer_opaque(means, opacities, np.arange(len(means)), points, PROTOCOL)
+    return np.unique(index[index >= 0]).astype(np.int64)
 
 
 def makeup(
     gt_instances: NDArray[np.int64], tree: cKDTree, centres: NDArray[np.float64]
 ) -> list[tuple[int, int]]:
-    """Ground-truth objects that ``centres`` lie on (nearest point within
-    :data:`MAX_DISTANCE`), as ``(object id, count)``, most first; -1 = no object."""
+    """Ground-truth objects that ``centres`` lie on (nearest point within the 3D protocol's
+    ``max_distance``), as ``(object id, count)``, most first; -1 = no object."""
     if not len(centres):
         return []
     gap, index = tree.query(centres)
-    ids, counts = np.unique(gt_instances[index[gap < MAX_DISTANCE]], return_counts=True)
+    reach = gap < PROTOCOL.max_distance
+    ids, counts = np.unique(gt_instances[index[reach]], return_counts=True)
     order = np.argsort(-counts, kind="stable")
     return [(int(ids[i]), int(counts[i])) for i in order]
 
